@@ -1,0 +1,51 @@
+"""heli_uq: Bayesian uncertainty quantification of a 2-DOF laboratory helicopter.
+
+The public API is re-exported here; submodules are one concept each
+(``params``, ``torques``, ``lagrangian``, ``dynamics``, ``simulate``, ``data``, ...).
+"""
+
+from heli_uq import _jax_config  # noqa: F401  (float64 before any array exists)
+from heli_uq.dynamics import (
+    AbstractHeliModel as AbstractHeliModel,
+    HelicopterModel as HelicopterModel,
+    LagrangianModel as LagrangianModel,
+    MechanicsCoefficients as MechanicsCoefficients,
+    momentum_vector_field as momentum_vector_field,
+    total_energy as total_energy,
+)
+from heli_uq.errors import (
+    DataFormatError as DataFormatError,
+    HeliUQError as HeliUQError,
+    ParameterError as ParameterError,
+)
+from heli_uq.objectives import loss_v as loss_v
+from heli_uq.params import (
+    PARAM_NAMES as PARAM_NAMES,
+    STATE_NAMES as STATE_NAMES,
+    TABLE1 as TABLE1,
+    TABLE2 as TABLE2,
+    TABLE3_X0 as TABLE3_X0,
+    HeliParams as HeliParams,
+)
+from heli_uq.simulate import (
+    RESULTS as RESULTS,
+    Solution as Solution,
+    simulate as simulate,
+    solve as solve,
+)
+from heli_uq.torques import (
+    AbstractTorque as AbstractTorque,
+    LinearTorque as LinearTorque,
+    SumTorque as SumTorque,
+)
+
+__all__ = [
+    "AbstractHeliModel", "HelicopterModel", "LagrangianModel", "MechanicsCoefficients",
+    "momentum_vector_field", "total_energy",
+    "DataFormatError", "HeliUQError", "ParameterError",
+    "loss_v",
+    "PARAM_NAMES", "STATE_NAMES", "TABLE1", "TABLE2", "TABLE3_X0", "HeliParams",
+    "RESULTS", "Solution", "simulate", "solve",
+    "AbstractTorque", "LinearTorque", "SumTorque",
+]  # fmt: skip
+__version__ = "0.1.0"

@@ -54,7 +54,8 @@ PARAM_UNITS: dict[str, str] = {k: v[1] for k, v in _SPEC.items()}
 PARAM_DESCRIPTIONS: dict[str, str] = {k: v[2] for k, v in _SPEC.items()}
 #: Paper Table 2 (nominal values).
 TABLE2: dict[str, float] = {k: v[0] for k, v in _SPEC.items()}
-#: Paper Table 1 (the paper's fitted values; loss V = 1.137 on the record per the issue tracker).
+#: Paper Table 1 (the paper's fitted values).  The paper reports V = 1.137 with its own fitted
+#: initial state; with x0 = (first measured angles, zero rates) this package gets V = 0.552.
 TABLE1: dict[str, float] = {
     "r_c": 0.022, "h": 0.001, "m": 0.72, "J_bc": 0.01, "J_s": 0.0017, "g": 9.81,
     "K_theta_theta": 0.105, "K_theta_psi": 0.0017, "K_psi_theta": 0.03, "K_psi_psi": 0.043,

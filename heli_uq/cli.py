@@ -1,0 +1,395 @@
+"""Command line interface ``heli-uq`` (also ``python -m heli_uq.cli``).
+
+Subcommands::
+
+    heli-uq run [--data experimental|synthetic|FILE.csv] [--out DIR]
+    heli-uq simulate --inputs table3|experiment|FILE.csv [--params P.json] [--x0 ...]
+                     [--t-end S] [--dt S] --out DIR
+    heli-uq data show experimental|FILE.csv [--window a:b] --out DIR
+
+Adding a subcommand is one ``_add_<name>(subparsers)`` function that builds its parser
+and sets ``handler=<function(args) -> int>``, plus one entry in :data:`_SUBCOMMANDS`.
+
+Exit codes: 0 success, 1 the simulation failed (diverged), 2 bad input or usage (any
+:class:`~heli_uq.errors.HeliUQError`, an output that cannot be written, or an argparse
+usage error).  Errors are reported as one line ``heli-uq: error: <message>`` on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from heli_uq import _jax_config  # noqa: F401  (float64 before any array exists)
+from heli_uq.errors import HeliUQError, ParameterError
+
+__all__ = ["main", "build_parser", "SIMULATION_COLUMNS"]
+
+PROG = "heli-uq"
+#: Header of ``simulation.csv``.
+SIMULATION_COLUMNS = ("t", "theta", "psi", "omega_theta", "omega_psi", "p_theta", "p_psi")
+#: Default sample time [s] and duration [s] of ``--inputs table3``.
+TABLE3_DT = 0.01
+TABLE3_T_END = 10.0
+_RECORD_KEYWORDS = ("experiment", "experimental")
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Keep the line breaks of descriptions/epilogs (defaults are spelled out in each help)."""
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _out_dir(path: str) -> Path:
+    """Create the output directory if missing (OSError propagates: exit 2)."""
+    out = Path(path)
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _positive_float(text: str, option: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ParameterError(f"{option}: expected a number of seconds, found {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise ParameterError(f"{option}: expected a finite number > 0, found {text!r}")
+    return value
+
+
+def _write_csv_atomic(path: Path, header: tuple[str, ...], rows: np.ndarray) -> Path:
+    """Write *rows* (2-D float array) with *header*, shortest round-trip floats, atomically."""
+    lines = [",".join(header)]
+    lines.extend(",".join(repr(float(v)) for v in row) for row in rows)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write("\n".join(lines) + "\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def momenta(params, ys) -> np.ndarray:
+    """Generalized momenta ``p = M(theta) v``, shape (N, 2) [kg m^2/s], for states (N, 4)."""
+    import jax
+    import jax.numpy as jnp
+
+    from heli_uq.dynamics import closed_form_mass_matrix
+    from heli_uq.params import HeliParams
+
+    hp = HeliParams.from_mapping(params)
+    ys = jnp.asarray(ys, dtype=jnp.float64)
+    mass = jax.vmap(closed_form_mass_matrix, in_axes=(None, 0))(hp, ys[:, 0])  # (N, 2, 2)
+    return np.asarray(jnp.einsum("nij,nj->ni", mass, ys[:, 2:]))
+
+
+# --------------------------------------------------------------------------- simulate
+
+
+def _simulation_inputs(args):
+    """Resolve ``--inputs``/``--x0``/``--t-end``/``--dt`` into ``(u, dt, x0, record)``."""
+    from heli_uq.params import TABLE3_X0, parse_x0
+
+    spec = args.inputs
+    if spec.strip().lower() == "table3":
+        dt = TABLE3_DT if args.dt is None else _positive_float(args.dt, "--dt")
+        t_end = TABLE3_T_END if args.t_end is None else _positive_float(args.t_end, "--t-end")
+        n = round(t_end / dt) + 1
+        if n < 2:
+            raise ParameterError(
+                f"--t-end {t_end:g} s with --dt {dt:g} s gives fewer than 2 samples"
+            )
+        x0 = TABLE3_X0 if args.x0 is None else parse_x0(args.x0)
+        return np.zeros((n, 2)), dt, x0, None
+
+    from heli_uq.data import load_data
+
+    if args.dt is not None:
+        raise ParameterError(
+            "--dt applies only to --inputs table3; a record is simulated on its own sample time"
+        )
+    record = load_data("experimental" if spec.strip().lower() in _RECORD_KEYWORDS else spec)
+    if args.t_end is not None:
+        t_end = _positive_float(args.t_end, "--t-end")
+        if t_end > record.duration + 1e-9 * record.dt:
+            raise ParameterError(
+                f"--t-end {t_end:g} s: beyond the end of {record.source}, "
+                f"which covers {record.duration:g} s"
+            )
+        record = record.window(float(record.t[0]), float(record.t[0]) + t_end)
+    if args.x0 is None:
+        x0 = (float(record.y[0, 0]), float(record.y[0, 1]), 0.0, 0.0)
+    else:
+        x0 = parse_x0(args.x0)
+    return record.u, record.dt, x0, record
+
+
+def _cmd_simulate(args) -> int:
+    from heli_uq.objectives import loss_v
+    from heli_uq.params import TABLE2, load_params_json
+    from heli_uq.plots import plot_simulation, save_figure
+    from heli_uq.simulate import RESULTS, solve
+
+    params = dict(TABLE2) if args.params is None else load_params_json(args.params)
+    u, dt, x0, record = _simulation_inputs(args)
+    out = _out_dir(args.out)
+
+    sol = solve(params, x0, u, dt)
+    if not bool(sol.ok):
+        kind = "non-finite states" if int(sol.result) == RESULTS.nonfinite else "blow-up"
+        print(
+            f"{PROG}: simulation diverged for these parameters ({kind}; parameters "
+            f"{args.params or 'Table 2'}, x0={tuple(float(v) for v in x0)}); nothing written",
+            file=sys.stderr,
+        )
+        return 1
+    ts = np.asarray(sol.ts, dtype=float)
+    if record is not None:
+        ts = ts + float(record.t[0])
+    ys = np.asarray(sol.ys, dtype=float)
+    p = momenta(params, ys)
+
+    csv_path = _write_csv_atomic(out / "simulation.csv", SIMULATION_COLUMNS,
+                                 np.column_stack([ts, ys, p]))
+    source = "Table 3 (zero voltages)" if record is None else Path(record.source).name
+    param_name = Path(args.params).name if args.params else "Table 2"
+    title = f"Simulation: inputs {source}, parameters {param_name}"
+    png_path = save_figure(plot_simulation(ts, ys, p, title=title, data=record),
+                           out / "simulation.png")
+
+    summary = (
+        f"simulated {ys.shape[0]} samples (dt = {dt:g} s, t = {ts[0]:g}..{ts[-1]:g} s) "
+        f"-> {csv_path}, {png_path}"
+    )
+    if record is not None:
+        summary += f"; loss V = {float(loss_v(ys, record.y)):.6g} rad^2"
+    print(summary)
+    return 0
+
+
+def _add_simulate(subparsers) -> None:
+    p = subparsers.add_parser(
+        "simulate",
+        help="simulate the helicopter and write simulation.csv and simulation.png",
+        description=(
+            "Simulate the 2-DOF helicopter (fixed-step RK4, zero-order-held voltages).\n\n"
+            "Writes DIR/simulation.csv with columns\n"
+            "  t [s], theta [rad], psi [rad], omega_theta [rad/s], omega_psi [rad/s],\n"
+            "  p_theta [kg m^2/s], p_psi [kg m^2/s]\n"
+            "and DIR/simulation.png (angles in degrees, velocities, momenta; the measured\n"
+            "angles are overlaid when the inputs come from a record)."
+        ),
+        epilog=(
+            "inputs:\n"
+            "  table3        zero voltages, x0 = Table 3 (pi/4, 0, -0.1, 0.1), on a grid\n"
+            "                of --dt up to --t-end (N = round(t_end/dt) + 1 samples)\n"
+            "  experiment    the voltages of the real rig record (13,100 samples, dt 0.01 s);\n"
+            "                found via $HELI_UQ_DATA or downloaded once\n"
+            "  FILE.csv      any record in the published format (u_theta [V], u_psi [V],\n"
+            "                theta [rad], psi [rad], dt [s] in the first data row)\n"
+            "  For records, x0 defaults to (first theta, first psi, 0, 0), the record's\n"
+            "  sample time is used, and the loss V = mean((theta - theta_d)^2 +\n"
+            "  (psi - psi_d)^2) [rad^2] is printed.\n\n"
+            "exit status: 0 ok, 1 the simulation diverged, 2 bad input\n\n"
+            "examples:\n"
+            "  heli-uq simulate --inputs table3 --out out/table3\n"
+            "  heli-uq simulate --inputs experiment --params fit.json --t-end 30 --out out/exp\n"
+            "  heli-uq simulate --inputs table3 --x0=-0.5,0,0,0 --out out/neg"
+        ),
+        formatter_class=_Formatter,
+    )
+    p.add_argument("--inputs", required=True, metavar="table3|experiment|FILE.csv",
+                   help="where the input voltages [V] come from (required; see 'inputs' below)")
+    p.add_argument("--params", metavar="FILE.json", default=None,
+                   help="JSON object of Table 2 parameter names to SI values, e.g. "
+                        '{"m": 0.72, "h": 0.001}; missing names take Table 2 values '
+                        "(default: Table 2)")
+    p.add_argument("--x0", metavar="THETA,PSI,OMEGA_THETA,OMEGA_PSI", default=None,
+                   help="initial state [rad, rad, rad/s, rad/s]; write --x0=-0.5,0,0,0 when "
+                        "the first value is negative (default: Table 3 for table3, "
+                        "the record's first angles and zero velocities for records)")
+    p.add_argument("--t-end", metavar="S", default=None,
+                   help=f"duration [s] (default: {TABLE3_T_END:g} for table3, the whole "
+                        "record for records; records are truncated to t < S)")
+    p.add_argument("--dt", metavar="S", default=None,
+                   help=f"sample time [s], only for table3 (default: {TABLE3_DT})")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output directory (created if missing)")
+    p.set_defaults(handler=_cmd_simulate)
+
+
+# --------------------------------------------------------------------------- data
+
+
+def _cmd_data_show(args) -> int:
+    from heli_uq.data import load_data, parse_window
+    from heli_uq.plots import plot_experiment, save_figure
+
+    exp = load_data(args.source)
+    if args.window is not None:
+        exp = exp.window(*parse_window(args.window))
+    out = _out_dir(args.out)
+    png_path = save_figure(plot_experiment(exp), out / "data.png")
+    u_lo, u_hi = exp.u.min(axis=0), exp.u.max(axis=0)
+    y_lo, y_hi = np.degrees(exp.y.min(axis=0)), np.degrees(exp.y.max(axis=0))
+    print(
+        f"{Path(exp.source).name}: N = {exp.n} samples, dt = {exp.dt:g} s, "
+        f"t = {exp.t[0]:g}..{exp.t[0] + exp.duration:g} s ({exp.duration:g} s); "
+        f"u_theta {u_lo[0]:.4g}..{u_hi[0]:.4g} V, u_psi {u_lo[1]:.4g}..{u_hi[1]:.4g} V, "
+        f"theta {y_lo[0]:.4g}..{y_hi[0]:.4g} deg, psi {y_lo[1]:.4g}..{y_hi[1]:.4g} deg "
+        f"-> {png_path}"
+    )
+    return 0
+
+
+def _add_data(subparsers) -> None:
+    p = subparsers.add_parser(
+        "data",
+        help="inspect rig records",
+        description="Inspect rig records (CSV: u_theta [V], u_psi [V], theta [rad], "
+                    "psi [rad], dt [s] in the first data row).",
+        formatter_class=_Formatter,
+    )
+    sub = p.add_subparsers(title="commands", dest="data_command", required=True,
+                           metavar="COMMAND")
+    show = sub.add_parser(
+        "show",
+        help="plot a record (voltages and angles) and print a summary",
+        description=(
+            "Plot a record as DIR/data.png: input voltages [V] (steps) and measured angles\n"
+            "[deg] vs time [s]; print N, dt, duration and the ranges of every column."
+        ),
+        epilog=(
+            "examples:\n"
+            "  heli-uq data show experimental --out out/data\n"
+            "  heli-uq data show experimental --window 90:131 --out out/val\n"
+            "  heli-uq data show my_record.csv --out out/mine"
+        ),
+        formatter_class=_Formatter,
+    )
+    show.add_argument("source", metavar="experimental|FILE.csv",
+                      help="the real rig record ($HELI_UQ_DATA or downloaded once) or a CSV "
+                           "record in the published format")
+    show.add_argument("--window", metavar="A:B", default=None,
+                      help="only samples with A <= t < B [s]; 'A:' runs to the end "
+                           "(default: the whole record)")
+    show.add_argument("--out", required=True, metavar="DIR",
+                      help="output directory (created if missing)")
+    show.set_defaults(handler=_cmd_data_show)
+
+
+# --------------------------------------------------------------------------- run
+
+
+def _record_for_run(spec: str, out: Path) -> str:
+    """A record path (or keyword) for ``run``; fall back to the synthetic default offline."""
+    from heli_uq.data import load_data, synthetic_experiment
+
+    if spec != "synthetic":
+        try:
+            load_data(spec)
+            return spec
+        except HeliUQError as exc:
+            if spec != "experimental":
+                raise
+            print(f"{PROG}: the real record is not available ({exc}); "
+                  "using the embedded synthetic default instead")
+    path = out / "synthetic_record.csv"
+    synthetic_experiment(seed=0, duration=60.0).to_csv(path)
+    return str(path)
+
+
+def _cmd_run(args) -> int:
+    """The main job: show the record, simulate Table 3, simulate the record (Tables 2 and 1)."""
+    import json
+
+    from heli_uq.params import TABLE1
+
+    out = _out_dir(args.out)
+    record = _record_for_run(args.data, out)
+    ns = argparse.Namespace
+    status = _cmd_data_show(ns(source=record, window=None, out=str(out / "data")))
+    status |= _cmd_simulate(ns(inputs="table3", params=None, x0=None, t_end=None, dt=None,
+                               out=str(out / "table3")))
+    table1 = out / "table1_params.json"
+    table1.write_text(json.dumps(TABLE1, indent=1), encoding="utf-8")
+    for name, params in (("record_table1", str(table1)), ("record_table2", None)):
+        print(f"[{name}] ", end="")
+        code = _cmd_simulate(ns(inputs=record, params=params, x0=None, t_end=None, dt=None,
+                                out=str(out / name)))
+        status |= code if name == "record_table1" else 0  # Table 2 may diverge: reported only
+    print(f"main job finished; figures and tables in {out}")
+    return status
+
+
+def _add_run(subparsers) -> None:
+    p = subparsers.add_parser(
+        "run",
+        help="the main job end to end: record figure, Table 3 and record simulations",
+        description=(
+            "Run the package's main job end to end and write everything under DIR:\n"
+            "  DIR/data/data.png                      the record (voltages, angles)\n"
+            "  DIR/table3/simulation.{csv,png}        nominal model, Table 3 conditions\n"
+            "  DIR/record_table1/simulation.{csv,png} the record's inputs, paper Table 1\n"
+            "  DIR/record_table2/simulation.{csv,png} the record's inputs, Table 2\n"
+            "The real record is used when available ($HELI_UQ_DATA or a checked\n"
+            "download); otherwise the embedded synthetic default (seed 0) is used."
+        ),
+        formatter_class=_Formatter,
+    )
+    p.add_argument("--data", default="experimental", metavar="experimental|synthetic|FILE.csv",
+                   help="record to use (default: experimental, falling back to synthetic)")
+    p.add_argument("--out", default="out", metavar="DIR",
+                   help="output directory (default: out)")
+    p.set_defaults(handler=_cmd_run)
+
+
+# --------------------------------------------------------------------------- main
+
+#: Parser builders of the subcommands, in the order shown by ``--help``.
+_SUBCOMMANDS = (_add_run, _add_simulate, _add_data)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``heli-uq`` argument parser with all subcommands."""
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Bayesian uncertainty quantification of a 2-DOF laboratory helicopter.\n"
+                    "States (theta, psi, omega_theta, omega_psi) in rad and rad/s; voltages "
+                    "in V;\nparameters in SI units (paper Table 2).",
+        epilog="Run 'heli-uq COMMAND --help' for the options of a command.",
+        formatter_class=_Formatter,
+    )
+    sub = parser.add_subparsers(title="commands", dest="command", required=True,
+                                metavar="COMMAND")
+    for add in _SUBCOMMANDS:
+        add(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``heli-uq`` with *argv* (default ``sys.argv[1:]``); return the exit status."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.handler(args))
+    except (HeliUQError, OSError) as exc:
+        if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+            message = f"{exc.filename}: {exc.strerror}"  # e.g. an --out that is a file
+        else:
+            message = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"{PROG}: error: {message}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

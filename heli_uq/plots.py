@@ -1,0 +1,194 @@
+"""Figures in the style of the paper: simulated trajectories (Figs. 4-6), records (Figs. 9-10).
+
+Every plotting function takes arrays (or an :class:`~heli_uq.data.Experiment`) and returns
+a :class:`matplotlib.figure.Figure`.  Figures are built without :mod:`matplotlib.pyplot`
+and rendered with the Agg canvas, so importing this module never changes the user's
+backend (it works headless, in scripts and in notebooks).  Write a figure with
+:func:`save_figure`.
+
+Angles are shown in degrees; everything else in SI units.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+__all__ = ["plot_simulation", "plot_experiment", "save_figure", "DPI"]
+
+#: Resolution of PNG files written by :func:`save_figure` [dots per inch].
+DPI = 150
+
+_THETA_COLOR = "C0"
+_PSI_COLOR = "C1"
+
+
+def _new_figure(nrows: int, figsize: tuple[float, float]):
+    fig = Figure(figsize=figsize)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(nrows, 1, sharex=True, squeeze=False)[:, 0]
+    return fig, axes
+
+
+def _legend(ax) -> None:
+    # Outside the axes on the right: never hides data, and avoids loc="best", which is
+    # slow (and warns) for long records.
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize="small")
+
+
+def _finish(fig, axes, title: str | None) -> None:
+    for ax in axes:
+        ax.grid(True, alpha=0.4)
+    axes[-1].set_xlabel("time $t$ [s]")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+
+
+def _as_2col(name: str, arr, n: int) -> np.ndarray:
+    arr = np.asarray(arr, dtype=float)
+    if arr.ndim != 2 or arr.shape[0] != n or arr.shape[1] < 2:
+        raise ValueError(f"{name}: expected shape ({n}, 2) or ({n}, 4), found {arr.shape}")
+    return arr
+
+
+def plot_simulation(ts, ys, momenta, *, title: str | None = None, data=None) -> Figure:
+    """Simulated trajectory in three panels (paper Figs. 4-6).
+
+    Parameters
+    ----------
+    ts : array_like, shape (N,)
+        Sample times [s].
+    ys : array_like, shape (N, 4)
+        States ``(theta, psi, omega_theta, omega_psi)`` [rad, rad, rad/s, rad/s].
+    momenta : array_like, shape (N, 2)
+        Generalized momenta ``(p_theta, p_psi)`` [kg m^2/s].
+    title : str, optional
+        Figure title.
+    data : Experiment, optional
+        A measured record; its angles are drawn on panel (a) as thin grey/black lines.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Panels (a) angles [deg], (b) angular velocities [rad/s], (c) momenta [kg m^2/s].
+    """
+    ts = np.asarray(ts, dtype=float).reshape(-1)
+    n = ts.shape[0]
+    ys = _as_2col("ys", ys, n)
+    if ys.shape[1] != 4:
+        raise ValueError(f"ys: expected shape ({n}, 4), found {ys.shape}")
+    momenta = _as_2col("momenta", momenta, n)
+
+    fig, (ax_a, ax_b, ax_c) = _new_figure(3, (9.0, 9.0))
+    if data is not None:
+        y_deg = np.degrees(np.asarray(data.y, dtype=float))
+        t_d = np.asarray(data.t, dtype=float)
+        ax_a.plot(t_d, y_deg[:, 0], color="black", lw=0.8, alpha=0.8,
+                  label=r"$\theta$ measured")
+        ax_a.plot(t_d, y_deg[:, 1], color="0.55", lw=0.8, alpha=0.9,
+                  label=r"$\psi$ measured")
+    ax_a.plot(ts, np.degrees(ys[:, 0]), color=_THETA_COLOR, lw=1.5, label=r"$\theta$ (pitch)")
+    ax_a.plot(ts, np.degrees(ys[:, 1]), color=_PSI_COLOR, lw=1.5, label=r"$\psi$ (yaw)")
+    ax_a.set_ylabel("angle [deg]")
+    ax_a.set_title("(a) angles", loc="left", fontsize="medium")
+
+    ax_b.plot(ts, ys[:, 2], color=_THETA_COLOR, lw=1.5, label=r"$\omega_\theta$")
+    ax_b.plot(ts, ys[:, 3], color=_PSI_COLOR, lw=1.5, label=r"$\omega_\psi$")
+    ax_b.set_ylabel("angular velocity [rad/s]")
+    ax_b.set_title("(b) angular velocities", loc="left", fontsize="medium")
+
+    ax_c.plot(ts, momenta[:, 0], color=_THETA_COLOR, lw=1.5, label=r"$p_\theta$")
+    ax_c.plot(ts, momenta[:, 1], color=_PSI_COLOR, lw=1.5, label=r"$p_\psi$")
+    ax_c.set_ylabel("momentum [kg m$^2$/s]")
+    ax_c.set_title("(c) generalized momenta", loc="left", fontsize="medium")
+
+    for ax in (ax_a, ax_b, ax_c):
+        _legend(ax)
+    _finish(fig, (ax_a, ax_b, ax_c), title)
+    return fig
+
+
+def plot_experiment(exp) -> Figure:
+    """A rig record in two panels (paper Figs. 9-10): input voltages and measured angles.
+
+    Parameters
+    ----------
+    exp : Experiment
+        The record; ``exp.t`` [s], ``exp.u`` [V] (zero-order held, drawn as steps),
+        ``exp.y`` [rad] (drawn in degrees).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    t = np.asarray(exp.t, dtype=float)
+    u = np.asarray(exp.u, dtype=float)
+    y_deg = np.degrees(np.asarray(exp.y, dtype=float))
+    # Show the last input held for its full interval [t_{N-1}, t_{N-1} + dt).
+    t_u = np.append(t, t[-1] + float(exp.dt))
+    u_ext = np.vstack([u, u[-1:]])
+
+    fig, (ax_u, ax_y) = _new_figure(2, (9.0, 6.0))
+    ax_u.plot(t_u, u_ext[:, 0], drawstyle="steps-post", color=_THETA_COLOR, lw=1.2,
+              label=r"$u_\theta$ (pitch motor)")
+    ax_u.plot(t_u, u_ext[:, 1], drawstyle="steps-post", color=_PSI_COLOR, lw=1.2,
+              label=r"$u_\psi$ (yaw motor)")
+    ax_u.set_ylabel("voltage [V]")
+    ax_u.set_title("(a) input voltages", loc="left", fontsize="medium")
+
+    ax_y.plot(t, y_deg[:, 0], color=_THETA_COLOR, lw=1.2, label=r"$\theta$ (pitch)")
+    ax_y.plot(t, y_deg[:, 1], color=_PSI_COLOR, lw=1.2, label=r"$\psi$ (yaw)")
+    ax_y.set_ylabel("angle [deg]")
+    ax_y.set_title("(b) measured angles", loc="left", fontsize="medium")
+
+    for ax in (ax_u, ax_y):
+        _legend(ax)
+    name = Path(str(exp.source)).name if exp.source else "record"
+    _finish(fig, (ax_u, ax_y), f"{name}: {exp.n} samples, dt = {exp.dt:g} s")
+    return fig
+
+
+def save_figure(fig: Figure, path: str | os.PathLike) -> Path:
+    """Write *fig* as a PNG at :data:`DPI`, atomically, then close it.
+
+    The image is rendered into a temporary file in the destination directory and moved
+    into place with :func:`os.replace`, so *path* is never left half-written.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+    path : str or path-like
+        Destination ``.png`` file; its directory must exist.
+
+    Returns
+    -------
+    pathlib.Path
+        The written path.
+    """
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fig.savefig(fh, format="png", dpi=DPI)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    finally:
+        _close(fig)
+    return path
+
+
+def _close(fig: Figure) -> None:
+    # Figures made here are not registered with pyplot; if the caller's figure is, let
+    # pyplot forget it (without importing pyplot, which would pick a backend).
+    plt = sys.modules.get("matplotlib.pyplot")
+    if plt is not None:
+        plt.close(fig)

@@ -1,0 +1,406 @@
+"""Tests of the ``heli-uq`` command line interface (heli_uq.cli) and its figures."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from heli_uq.cli import main
+from heli_uq.data import EXPERIMENTAL_FILENAME, Experiment, read_record
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+REAL_DIR = Path(os.environ.get("HELI_UQ_DATA") or REPO_ROOT.parent / "shared" / "data")
+REAL_FILE = REAL_DIR / EXPERIMENTAL_FILENAME
+
+HEADER = "t,theta,psi,omega_theta,omega_psi,p_theta,p_psi"
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+PUBLISHED_HEADER = (
+    r"Pitch motor $u_\theta$ [V],Yaw motor $u_\psi$ [V],Pitch angle $\theta$ [rad],"
+    r"Yaw angle $\psi$ [rad],Sample time $\Delta t$ [s]"
+)
+
+# Paper Table 2, written out here independently of heli_uq.params.
+J_BC, M, R_C, H, J_S = 0.015, 0.5, 0.015, 0.0, 0.005
+TABLE3_X0 = (math.pi / 4, 0.0, -0.1, 0.1)
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def read_sim_csv(path: Path) -> tuple[str, np.ndarray]:
+    text = path.read_text(encoding="utf-8")
+    header, *rows = text.splitlines()
+    values = np.array([[float(c) for c in row.split(",")] for row in rows])
+    return header, values
+
+
+def assert_png(path: Path, min_bytes: int = 10_000) -> None:
+    blob = path.read_bytes()
+    assert blob[:8] == PNG_MAGIC, f"{path} is not a PNG"
+    assert len(blob) > min_bytes, f"{path} is suspiciously small ({len(blob)} bytes)"
+
+
+def assert_one_line_error(err: str, *needles: str) -> str:
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, f"expected one line on stderr, got {err!r}"
+    assert lines[0].startswith("heli-uq: error: ")
+    for needle in needles:
+        assert needle in lines[0], f"{needle!r} not in {lines[0]!r}"
+    return lines[0]
+
+
+def printed_loss(out: str) -> float:
+    match = re.search(r"loss V = ([0-9.eE+-]+) rad\^2", out)
+    assert match, f"no loss in {out!r}"
+    return float(match.group(1))
+
+
+@pytest.fixture
+def small_record(tmp_path) -> Path:
+    """A 60-sample record at dt = 0.02 s with voltage steps, in the published format."""
+    n, dt = 60, 0.02
+    k = np.arange(n)
+    u = np.column_stack([np.where(k < 30, 1.30, 1.40), np.where(k < 20, 0.8, 1.1)])
+    y = np.column_stack([-0.6 + 0.002 * k, 0.8 + 0.004 * k])
+    path = Experiment(k * dt, u, y, dt, "small").to_csv(tmp_path / "small.csv")
+    text = path.read_text(encoding="utf-8-sig")
+    assert text.splitlines()[0] == PUBLISHED_HEADER  # really the published format
+    return path
+
+
+def run(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+# --------------------------------------------------------------------------- simulate table3
+
+
+@pytest.fixture(scope="module")
+def table3_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("table3") / "nested" / "out"  # DIR is created
+    code = main(["simulate", "--inputs", "table3", "--out", str(out)])
+    return code, out
+
+
+def test_table3_csv_content(table3_run):
+    code, out = table3_run
+    assert code == 0
+    header, v = read_sim_csv(out / "simulation.csv")
+    assert header == HEADER
+    dt, t_end = 0.01, 10.0
+    assert v.shape == (round(t_end / dt) + 1, 7)
+    np.testing.assert_allclose(v[:, 0], np.arange(v.shape[0]) * dt, rtol=0, atol=1e-12)
+    # First row is x0 exactly (repr-precision floats round-trip).
+    assert tuple(v[0, 1:5]) == TABLE3_X0
+    assert np.all(np.isfinite(v))
+    # Momenta p = M(theta) v with M from Table 2, computed here independently.
+    theta, om_theta, om_psi = v[:, 1], v[:, 3], v[:, 4]
+    m11 = J_BC + M * R_C**2 + M * H**2
+    np.testing.assert_allclose(v[:, 5], m11 * om_theta, rtol=1e-12, atol=1e-15)
+    c, s = np.cos(theta), np.sin(theta)
+    m22 = J_BC * c**2 + M * (R_C * c - H * s) ** 2 + J_S
+    np.testing.assert_allclose(v[:, 6], m22 * om_psi, rtol=1e-12, atol=1e-15)
+    # Velocities are the derivatives of the angles (central differences, O(dt^2)).
+    np.testing.assert_allclose(np.gradient(v[:, 1], dt)[1:-1], om_theta[1:-1], atol=2e-3)
+    np.testing.assert_allclose(np.gradient(v[:, 2], dt)[1:-1], om_psi[1:-1], atol=2e-3)
+    # Zero voltages: pitch falls and settles towards hanging down (theta = -90 deg).
+    assert abs(math.degrees(theta[-1]) + 90.0) < 15.0
+    assert not (out.parent / ".simulation.csv.tmp").exists()
+    assert sorted(p.name for p in out.iterdir()) == ["simulation.csv", "simulation.png"]
+
+
+def test_table3_png(table3_run):
+    _, out = table3_run
+    assert_png(out / "simulation.png")
+
+
+def test_table3_custom_grid_and_summary(tmp_path, capsys):
+    code, out, err = run(capsys, "simulate", "--inputs", "table3", "--t-end", "1",
+                         "--dt", "0.05", "--out", str(tmp_path))
+    assert code == 0, err
+    _, v = read_sim_csv(tmp_path / "simulation.csv")
+    assert v.shape == (21, 7)
+    np.testing.assert_allclose(v[-1, 0], 1.0)
+    assert "21 samples" in out and str(tmp_path / "simulation.csv") in out
+    assert "loss" not in out  # no measured angles for table3
+
+
+def test_x0_option(tmp_path, capsys):
+    code, _, err = run(capsys, "simulate", "--inputs", "table3", "--t-end", "0.5",
+                       "--x0=-0.5,0.25,0,1e-3", "--out", str(tmp_path))
+    assert code == 0, err
+    _, v = read_sim_csv(tmp_path / "simulation.csv")
+    assert tuple(v[0, 1:5]) == (-0.5, 0.25, 0.0, 1e-3)
+
+
+def test_params_json_changes_trajectory(tmp_path, capsys, table3_run):
+    params = tmp_path / "heavy.json"
+    params.write_text(json.dumps({"m": 0.9}))
+    out = tmp_path / "out"
+    code, _, err = run(capsys, "simulate", "--inputs", "table3", "--params", str(params),
+                       "--out", str(out))
+    assert code == 0, err
+    _, heavy = read_sim_csv(out / "simulation.csv")
+    _, nominal = read_sim_csv(table3_run[1] / "simulation.csv")
+    assert heavy.shape == nominal.shape
+    assert tuple(heavy[0, 1:5]) == TABLE3_X0
+    assert np.max(np.abs(heavy[:, 1] - nominal[:, 1])) > 1e-2  # [rad]
+    # The momenta use the new mass.
+    m11 = J_BC + 0.9 * R_C**2
+    np.testing.assert_allclose(heavy[:, 5], m11 * heavy[:, 3], rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("content", "needles"),
+    [
+        ('{"mass": 0.5}', ["unknown parameter", "'mass'"]),
+        ('{"m": "heavy"}', ["'m'", "must be a number"]),
+        ('{"m": -0.5}', ["'m'", "must be > 0"]),
+        ('{"m": 0.5,', ["invalid JSON", "line 1"]),
+        ("[0.5]", ["JSON object"]),
+    ],
+    ids=["unknown-name", "non-number", "negative-mass", "invalid-json", "not-object"],
+)
+def test_bad_params_json(tmp_path, capsys, content, needles):
+    params = tmp_path / "bad.json"
+    params.write_text(content)
+    out = tmp_path / "out"
+    code, stdout, err = run(capsys, "simulate", "--inputs", "table3", "--params", str(params),
+                            "--out", str(out))
+    assert code == 2
+    assert_one_line_error(err, "bad.json", *needles)
+    assert stdout == ""
+    assert not (out / "simulation.csv").exists()
+
+
+def test_missing_params_file(tmp_path, capsys):
+    code, _, err = run(capsys, "simulate", "--inputs", "table3", "--params",
+                       str(tmp_path / "nope.json"), "--out", str(tmp_path))
+    assert code == 2
+    assert_one_line_error(err, "nope.json")
+
+
+@pytest.mark.parametrize("x0", ["1,2,3", "a,b,c,d", "nan,0,0,0", "1,2,3,4,5"])
+def test_bad_x0(tmp_path, capsys, x0):
+    code, _, err = run(capsys, "simulate", "--inputs", "table3", f"--x0={x0}",
+                       "--out", str(tmp_path))
+    assert code == 2
+    assert_one_line_error(err, "--x0")
+
+
+@pytest.mark.parametrize(("option", "value"), [("--t-end", "-1"), ("--dt", "0"),
+                                                ("--dt", "fast"), ("--t-end", "inf")])
+def test_bad_grid_options(tmp_path, capsys, option, value):
+    code, _, err = run(capsys, "simulate", "--inputs", "table3", f"{option}={value}",
+                       "--out", str(tmp_path))
+    assert code == 2
+    assert_one_line_error(err, option)
+
+
+def test_diverging_parameters_exit_1(tmp_path, capsys):
+    # Tiny inertias make the damping term D/M11 ~ 1e7 1/s: RK4 at dt = 0.01 s blows up.
+    params = tmp_path / "stiff.json"
+    params.write_text(json.dumps({"J_bc": 1e-9, "m": 1e-6}))
+    code, _, err = run(capsys, "simulate", "--inputs", "table3", "--params", str(params),
+                       "--out", str(tmp_path / "out"))
+    assert code == 1
+    assert "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1 and "diverged" in err
+    assert not (tmp_path / "out" / "simulation.csv").exists()
+
+
+def test_out_is_a_file(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    code, _, err = run(capsys, "simulate", "--inputs", "table3", "--t-end", "0.1",
+                       "--out", str(blocker))
+    assert code == 2
+    assert_one_line_error(err, str(blocker))
+
+
+def test_usage_errors_exit_2(capsys):
+    for argv in ([], ["simulate", "--inputs", "table3"], ["frobnicate"], ["data"]):
+        with pytest.raises(SystemExit) as info:
+            main(argv)
+        assert info.value.code == 2
+    assert "usage:" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- simulate record
+
+
+def test_simulate_record_file(tmp_path, capsys, small_record):
+    rec = read_record(small_record)
+    out = tmp_path / "out"
+    code, stdout, err = run(capsys, "simulate", "--inputs", str(small_record),
+                            "--out", str(out))
+    assert code == 0, err
+    header, v = read_sim_csv(out / "simulation.csv")
+    assert header == HEADER
+    assert v.shape == (rec.n, 7)
+    np.testing.assert_allclose(v[:, 0], np.arange(rec.n) * 0.02, rtol=0, atol=1e-12)
+    assert tuple(v[0, 1:5]) == (rec.y[0, 0], rec.y[0, 1], 0.0, 0.0)
+    assert np.all(np.isfinite(v))
+    # The printed loss is Eq. 1 on the written angles and the record's angles.
+    loss = np.mean((v[:, 1] - rec.y[:, 0]) ** 2 + (v[:, 2] - rec.y[:, 1]) ** 2)
+    assert printed_loss(stdout) == pytest.approx(loss, rel=1e-5)
+    assert f"{rec.n} samples" in stdout
+    assert_png(out / "simulation.png")
+
+
+def test_simulate_record_inputs_matter(tmp_path, capsys, small_record):
+    """The record's voltages drive the model: Table 3's zero voltages give another path."""
+    code, _, err = run(capsys, "simulate", "--inputs", str(small_record),
+                       "--out", str(tmp_path / "rec"))
+    assert code == 0, err
+    code, _, err = run(capsys, "simulate", "--inputs", "table3", "--t-end", "1.18",
+                       "--dt", "0.02", "--x0=-0.6,0.8,0,0", "--out", str(tmp_path / "zero"))
+    assert code == 0, err
+    _, rec = read_sim_csv(tmp_path / "rec" / "simulation.csv")
+    _, zero = read_sim_csv(tmp_path / "zero" / "simulation.csv")
+    assert rec.shape == zero.shape
+    # Voltages drive the yaw; without voltages and with omega_psi(0) = 0 there is no yaw motion.
+    assert abs(rec[-1, 4]) > 0.05
+    assert np.all(zero[:, 2] == 0.8) and np.all(zero[:, 4] == 0.0)
+    assert np.max(np.abs(rec[:, 1:3] - zero[:, 1:3])) > 1e-3
+
+
+def test_simulate_record_t_end_truncates(tmp_path, capsys, small_record):
+    code, _, err = run(capsys, "simulate", "--inputs", str(small_record), "--t-end", "0.5",
+                       "--out", str(tmp_path))
+    assert code == 0, err
+    _, v = read_sim_csv(tmp_path / "simulation.csv")
+    assert v.shape[0] == 25  # t < 0.5 s at dt = 0.02 s
+    assert v[-1, 0] < 0.5
+
+
+def test_simulate_record_rejects_dt_and_long_t_end(tmp_path, capsys, small_record):
+    code, _, err = run(capsys, "simulate", "--inputs", str(small_record), "--dt", "0.01",
+                       "--out", str(tmp_path))
+    assert code == 2
+    assert_one_line_error(err, "--dt")
+    code, _, err = run(capsys, "simulate", "--inputs", str(small_record), "--t-end", "5",
+                       "--out", str(tmp_path))
+    assert code == 2
+    assert_one_line_error(err, "--t-end", "small.csv")
+
+
+def test_simulate_bad_record(tmp_path, capsys):
+    bad = tmp_path / "broken_record.csv"
+    bad.write_text(PUBLISHED_HEADER + "\n1.2,0.7,-0.6,0.8,0.01\n1.2,oops,-0.6,0.8,\n")
+    code, stdout, err = run(capsys, "simulate", "--inputs", str(bad), "--out",
+                            str(tmp_path / "out"))
+    assert code == 2
+    line = assert_one_line_error(err, "broken_record.csv", "'oops'")
+    assert "line 3" in line
+    assert stdout == ""
+
+
+def test_simulate_missing_record(tmp_path, capsys):
+    code, _, err = run(capsys, "simulate", "--inputs", str(tmp_path / "absent.csv"),
+                       "--out", str(tmp_path))
+    assert code == 2
+    assert_one_line_error(err, "absent.csv")
+
+
+@pytest.fixture
+def real_data(monkeypatch):
+    monkeypatch.setenv("HELI_UQ_DATA", str(REAL_DIR))
+    if not REAL_FILE.is_file():
+        pytest.skip(f"real record not found at {REAL_FILE} (set HELI_UQ_DATA)")
+    return read_record(REAL_FILE)
+
+
+def test_simulate_experiment(tmp_path, capsys, real_data):
+    code, stdout, err = run(capsys, "simulate", "--inputs", "experiment", "--t-end", "2",
+                            "--out", str(tmp_path))
+    assert code == 0, err
+    _, v = read_sim_csv(tmp_path / "simulation.csv")
+    assert v.shape == (200, 7)
+    assert tuple(v[0, 1:5]) == (real_data.y[0, 0], real_data.y[0, 1], 0.0, 0.0)
+    assert (v[0, 1], v[0, 2]) == (-0.66698, 0.81165)  # first row of the published file
+    loss = np.mean(np.sum((v[:, 1:3] - real_data.y[:200]) ** 2, axis=1))
+    assert printed_loss(stdout) == pytest.approx(loss, rel=1e-5)
+    assert_png(tmp_path / "simulation.png")
+
+
+# --------------------------------------------------------------------------- data show
+
+
+def test_data_show_small(tmp_path, capsys, small_record):
+    code, stdout, err = run(capsys, "data", "show", str(small_record), "--out",
+                            str(tmp_path / "d"))
+    assert code == 0, err
+    assert_png(tmp_path / "d" / "data.png")
+    assert "N = 60" in stdout and "dt = 0.02 s" in stdout
+    assert "1.3..1.4 V" in stdout  # u_theta range
+    assert len(stdout.strip().splitlines()) == 1
+
+
+def test_data_show_window(tmp_path, capsys, small_record):
+    code, stdout, err = run(capsys, "data", "show", str(small_record), "--window", "0.2:0.6",
+                            "--out", str(tmp_path))
+    assert code == 0, err
+    assert "N = 20" in stdout
+
+
+@pytest.mark.parametrize("window", ["2:3", "0.5:0.1", "abc"])
+def test_data_show_bad_window(tmp_path, capsys, small_record, window):
+    code, _, err = run(capsys, "data", "show", str(small_record), "--window", window,
+                       "--out", str(tmp_path))
+    assert code == 2
+    assert_one_line_error(err, "window")
+    assert not (tmp_path / "data.png").exists()
+
+
+def test_data_show_experimental(tmp_path, capsys, real_data):
+    code, stdout, err = run(capsys, "data", "show", "experimental", "--window", "90:131",
+                            "--out", str(tmp_path))
+    assert code == 0, err
+    assert "N = 4100" in stdout
+    assert_png(tmp_path / "data.png")
+
+
+# --------------------------------------------------------------------------- processes
+
+
+def test_console_script_and_module(tmp_path, small_record):
+    script = shutil.which("heli-uq") or str(Path(sys.executable).parent / "heli-uq")
+    if not Path(script).is_file():
+        pytest.skip("console script heli-uq is not installed")
+    done = subprocess.run([script, "--help"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0
+    assert "simulate" in done.stdout and "data" in done.stdout
+
+    done = subprocess.run([script, "simulate", "--inputs", "table3"], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 2 and "--out" in done.stderr
+
+    out = tmp_path / "proc"
+    done = subprocess.run(
+        [sys.executable, "-m", "heli_uq.cli", "data", "show", str(small_record),
+         "--out", str(out)],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    assert_png(out / "data.png")
+
+    done = subprocess.run(
+        [sys.executable, "-m", "heli_uq.cli", "data", "show", str(tmp_path / "none.csv"),
+         "--out", str(out)],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert done.returncode == 2
+    assert_one_line_error(done.stderr, "none.csv")

@@ -1,0 +1,152 @@
+"""Sampling coordinates in which the record's (non-)identifiable directions are explicit.
+
+The angles depend on the parameters only through ratios to the pitch inertia
+``M11 = J_bc + m r_c^2 + m h^2`` (divide both equations of motion by ``M11``; the yaw
+equation by ``M22``, which is ``M11`` times a ratio too).  So, for the default free set
+(every Table 2 parameter but ``g``), we sample
+
+======================  ===============================  ==================================
+coordinate              meaning                          identified by the angles?
+======================  ===============================  ==================================
+log_J_pitch             log M11 [kg m^2]                 no: common scale of m, J_bc, J_s,
+                                                         K_*, D_* (its posterior = prior)
+log_gravity_ratio       log(m g r_c / M11) [1/s^2]       yes
+logit_body_fraction     logit(m (r_c^2 + h^2) / M11)     only through h: weak when h ~ 0,
+                                                         none when h is fixed at 0
+h_over_r_c              h / r_c                          yes (if h is free)
+log_J_s_ratio           log(J_s / M11)                   yes
+log_<K>_ratio (4)       log(K / M11)                     yes
+log_<D>_ratio (2)       log(D / M11)                     yes
+======================  ===============================  ==================================
+
+The two unidentified directions become straight coordinate axes, along which the
+posterior is the (conditional) prior, so NUTS with a dense mass matrix moves along them
+freely.  The priors stay the user's priors on the *physical* parameters: the log
+density includes ``log |det d w / d z|`` where ``w`` are the coordinates in which each
+prior is Gaussian (log for log-normal priors).  Any other choice of free parameters
+falls back to plain log coordinates (``strategy="log"``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from heli_uq.params import PARAM_NAMES
+from heli_uq.priors import Prior
+
+__all__ = ["Coordinates"]
+
+_SCALED = ("J_s", "K_theta_theta", "K_theta_psi", "K_psi_theta", "K_psi_psi", "D_theta", "D_psi")
+_BODY = ("r_c", "m", "J_bc")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Coordinates:
+    """Map between unconstrained sampling coordinates ``z`` and physical parameters.
+
+    Parameters
+    ----------
+    priors : mapping of str to Prior
+        One prior per Table 2 name; ``fixed`` priors are not sampled.
+    strategy : {"auto", "identifiable", "log"}
+        ``auto`` uses ``identifiable`` when the free set allows it.
+    """
+
+    priors: Mapping[str, Prior]
+    strategy: str = "auto"
+
+    def __post_init__(self):
+        free = tuple(n for n in PARAM_NAMES if self.priors[n].free)
+        object.__setattr__(self, "free", free)
+        possible = (
+            all(self.priors[n].kind == "lognormal" for n in _BODY + _SCALED)
+            and not self.priors["g"].free
+            and (self.priors["h"].kind == "normal"
+                 or (self.priors["h"].kind == "fixed" and self.priors["h"].a == 0.0))
+        )  # fmt: skip
+        strategy = self.strategy
+        if strategy == "auto":
+            strategy = "identifiable" if possible else "log"
+        if strategy == "identifiable" and not possible:
+            raise ValueError(
+                "identifiable coordinates need log-normal priors on r_c, m, J_bc, J_s, K_*, D_*,"
+                " g fixed and h free (normal) or fixed at 0"
+            )
+        object.__setattr__(self, "resolved", strategy)
+        if strategy == "identifiable":
+            names = ["log_J_pitch", "log_gravity_ratio", "logit_body_fraction"]
+            if self.priors["h"].free:
+                names.append("h_over_r_c")
+            names += [f"log_{n}_ratio" for n in _SCALED]
+            unidentified = ("log_J_pitch",) + (() if self.priors["h"].free
+                                               else ("logit_body_fraction",))  # fmt: skip
+        else:
+            names = [f"log_{n}" if self.priors[n].kind == "lognormal" else n for n in free]
+            unidentified = ()
+        object.__setattr__(self, "names", tuple(names))
+        object.__setattr__(self, "unidentified", unidentified)
+
+    @property
+    def dim(self) -> int:
+        return len(self.names)
+
+    # ------------------------------------------------------------------ maps
+    def to_physical(self, z) -> dict:
+        """All twelve parameters (jnp scalars, SI) from coordinates ``z`` of shape (dim,)."""
+        fixed = {n: jnp.asarray(p.a, dtype=jnp.float64) for n, p in self.priors.items()
+                 if not p.free}  # fmt: skip
+        if self.resolved == "log":
+            out = dict(fixed)
+            for i, n in enumerate(self.free):
+                out[n] = jnp.exp(z[i]) if self.priors[n].kind == "lognormal" else z[i]
+            return out
+        g = fixed["g"]
+        m11 = jnp.exp(z[0])
+        gamma = jnp.exp(z[1])
+        frac = jax.nn.sigmoid(z[2])
+        i = 3
+        if self.priors["h"].free:
+            rho, i = z[3], 4
+        else:
+            rho = jnp.zeros(())
+        mrc = gamma * m11 / g
+        r_c = frac * m11 / ((1.0 + rho * rho) * mrc)
+        out = dict(fixed)
+        out.update(r_c=r_c, m=mrc / r_c, h=rho * r_c, J_bc=m11 * (1.0 - frac))
+        for k, n in enumerate(_SCALED):
+            out[n] = m11 * jnp.exp(z[i + k])
+        return out
+
+    def from_physical(self, values: Mapping[str, float]) -> np.ndarray:
+        """Coordinates of a full parameter mapping (inverse of :meth:`to_physical`)."""
+        v = {n: float(values[n]) for n in PARAM_NAMES}
+        if self.resolved == "log":
+            return np.array([math.log(v[n]) if self.priors[n].kind == "lognormal" else v[n]
+                             for n in self.free])  # fmt: skip
+        m11 = v["J_bc"] + v["m"] * (v["r_c"] ** 2 + v["h"] ** 2)
+        g = float(self.priors["g"].a)
+        frac = v["m"] * (v["r_c"] ** 2 + v["h"] ** 2) / m11
+        z = [math.log(m11), math.log(v["m"] * g * v["r_c"] / m11), math.log(frac / (1 - frac))]
+        if self.priors["h"].free:
+            z.append(v["h"] / v["r_c"])
+        z += [math.log(v[n] / m11) for n in _SCALED]
+        return np.array(z)
+
+    def _prior_coordinates(self, z):
+        phys = self.to_physical(z)
+        return jnp.stack([self.priors[n].to_coordinate(phys[n]) for n in self.free])
+
+    def log_prior(self, z):
+        """Log prior density of ``z``: the physical priors plus ``log |det dw/dz|``."""
+        w = self._prior_coordinates(z)
+        lp = sum(self.priors[n].log_density_coordinate(w[i]) for i, n in enumerate(self.free))
+        if self.resolved == "log":
+            return lp
+        _, logdet = jnp.linalg.slogdet(jax.jacfwd(self._prior_coordinates)(z))
+        return lp + logdet

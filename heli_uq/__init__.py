@@ -7,35 +7,69 @@ The public API is re-exported here; submodules are one concept each
 from heli_uq import _jax_config  # noqa: F401  (float64 before any array exists)
 from heli_uq.dynamics import (
     AbstractHeliModel as AbstractHeliModel,
+)
+from heli_uq.dynamics import (
     HelicopterModel as HelicopterModel,
+)
+from heli_uq.dynamics import (
     LagrangianModel as LagrangianModel,
+)
+from heli_uq.dynamics import (
     MechanicsCoefficients as MechanicsCoefficients,
+)
+from heli_uq.dynamics import (
     momentum_vector_field as momentum_vector_field,
+)
+from heli_uq.dynamics import (
     total_energy as total_energy,
 )
 from heli_uq.errors import (
     DataFormatError as DataFormatError,
+)
+from heli_uq.errors import (
     HeliUQError as HeliUQError,
+)
+from heli_uq.errors import (
     ParameterError as ParameterError,
 )
 from heli_uq.objectives import loss_v as loss_v
 from heli_uq.params import (
     PARAM_NAMES as PARAM_NAMES,
+)
+from heli_uq.params import (
     STATE_NAMES as STATE_NAMES,
+)
+from heli_uq.params import (
     TABLE1 as TABLE1,
+)
+from heli_uq.params import (
     TABLE2 as TABLE2,
+)
+from heli_uq.params import (
     TABLE3_X0 as TABLE3_X0,
+)
+from heli_uq.params import (
     HeliParams as HeliParams,
 )
 from heli_uq.simulate import (
     RESULTS as RESULTS,
+)
+from heli_uq.simulate import (
     Solution as Solution,
+)
+from heli_uq.simulate import (
     simulate as simulate,
+)
+from heli_uq.simulate import (
     solve as solve,
 )
 from heli_uq.torques import (
     AbstractTorque as AbstractTorque,
+)
+from heli_uq.torques import (
     LinearTorque as LinearTorque,
+)
+from heli_uq.torques import (
     SumTorque as SumTorque,
 )
 

@@ -18,7 +18,6 @@ from __future__ import annotations
 import csv
 import math
 import os
-import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from heli_uq.errors import DataFormatError, ParameterError
+from heli_uq.io import atomic_write_bytes
 
 __all__ = [
     "DATA_ENV_VAR",
@@ -264,15 +264,7 @@ class Experiment:
             cells.append(repr(self.dt) if k == 0 else "")
             lines.append(",".join(cells))
         text = "\r\n".join(lines) + "\r\n"
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8-sig", newline="") as f:
-                f.write(text)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-        return path
+        return atomic_write_bytes(path, text.encode("utf-8-sig"))
 
 
 def _shape_text(shape: tuple) -> str:

@@ -11,16 +11,18 @@ Angles are shown in degrees; everything else in SI units.
 
 from __future__ import annotations
 
+import io
 import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-__all__ = ["plot_simulation", "plot_experiment", "save_figure", "DPI"]
+from heli_uq.io import atomic_write_bytes
+
+__all__ = ["plot_simulation", "plot_experiment", "plot_bands", "save_figure", "DPI"]
 
 #: Resolution of PNG files written by :func:`save_figure` [dots per inch].
 DPI = 150
@@ -155,11 +157,55 @@ def plot_experiment(exp) -> Figure:
     return fig
 
 
+def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
+               title: str | None = None) -> Figure:
+    """Posterior-predictive 50 % and 90 % bands for pitch and yaw with the data on top.
+
+    Parameters
+    ----------
+    t : array, shape (N,)
+        Time [s].
+    y_pred : array, shape (S, N, 2)
+        Predictive draws of (theta, psi) [rad].
+    y_obs : array, shape (N, 2)
+        Measured angles [rad].
+    train_mask, test_mask : bool arrays, shape (N,)
+        The training window is shaded white, the test window light grey and labelled.
+    coverage : dict, optional
+        ``{window: {"theta": c90, "psi": c90}}``, shown in the legend.
+    """
+    t = np.asarray(t, dtype=float)
+    q = np.degrees(np.quantile(np.asarray(y_pred), [0.05, 0.25, 0.5, 0.75, 0.95], axis=0))
+    obs = np.degrees(np.asarray(y_obs, dtype=float))
+    fig, axes = _new_figure(2, (11.0, 6.5))
+    for j, (ax, name, sym, color) in enumerate(zip(
+            axes, ("pitch", "yaw"), (r"\theta", r"\psi"), (_THETA_COLOR, _PSI_COLOR))):  # fmt: skip
+        ax.fill_between(t, q[0, :, j], q[4, :, j], color=color, alpha=0.25, lw=0,
+                        label="90 % predictive band")
+        ax.fill_between(t, q[1, :, j], q[3, :, j], color=color, alpha=0.5, lw=0,
+                        label="50 % predictive band")
+        ax.plot(t, q[2, :, j], color=color, lw=1.0, label="predictive median")
+        ax.plot(t, obs[:, j], color="k", lw=0.6, label="measured")
+        if test_mask is not None and np.any(test_mask):
+            t_test = t[np.asarray(test_mask, bool)]
+            ax.axvspan(t_test[0], t_test[-1], color="0.85", zorder=-1, label="test window")
+            ax.axvline(t_test[0], color="0.3", ls="--", lw=0.8)
+        if coverage:
+            text = ", ".join(f"{w}: {100 * c[('theta', 'psi')[j]]:.0f} %"
+                             for w, c in coverage.items())  # fmt: skip
+            ax.set_title(f"{name} ${sym}$ - 90 % band covers {text} of the data",
+                         loc="left", fontsize="medium")  # fmt: skip
+        ax.set_ylabel(f"${sym}$ [deg]")
+        _legend(ax)
+    _finish(fig, axes, title)
+    return fig
+
+
 def save_figure(fig: Figure, path: str | os.PathLike) -> Path:
     """Write *fig* as a PNG at :data:`DPI`, atomically, then close it.
 
-    The image is rendered into a temporary file in the destination directory and moved
-    into place with :func:`os.replace`, so *path* is never left half-written.
+    The image is rendered in memory and written with
+    :func:`heli_uq.io.atomic_write_bytes`, so *path* is never left half-written.
 
     Parameters
     ----------
@@ -172,18 +218,12 @@ def save_figure(fig: Figure, path: str | os.PathLike) -> Path:
     pathlib.Path
         The written path.
     """
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    buf = io.BytesIO()
     try:
-        with os.fdopen(fd, "wb") as fh:
-            fig.savefig(fh, format="png", dpi=DPI)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        fig.savefig(buf, format="png", dpi=DPI)
     finally:
         _close(fig)
-    return path
+    return atomic_write_bytes(path, buf.getvalue())
 
 
 def _close(fig: Figure) -> None:

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from heli_uq import HeliParams, LagrangianModel, HelicopterModel, TABLE1, TABLE2, TABLE3_X0
+from heli_uq import TABLE1, TABLE2, TABLE3_X0, HelicopterModel, HeliParams, LagrangianModel
 from heli_uq.dynamics import (
     MechanicsCoefficients,
     closed_form_acceleration,

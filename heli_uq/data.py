@@ -86,7 +86,7 @@ SYNTHETIC_X0 = (-0.5, 0.0, 0.0, 0.0)
 #: turn or so, like the real record (u_theta 1.21-1.47 V, u_psi 0.48-1.57 V).  Above
 #: u_theta ~1.48 V the Table 1 pitch torque exceeds the largest gravity torque and the
 #: model (which has no pitch stops) loops over the top.
-STEP_RANGES = ((1.2, 1.42), (0.6, 1.2))
+STEP_RANGES = ((1.0, 1.45), (0.4, 1.3))
 #: Range [s] of the hold time of one step of the ``"steps"`` profile.
 STEP_HOLD = (0.5, 3.0)
 

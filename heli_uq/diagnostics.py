@@ -29,6 +29,13 @@ def _diagnostic_vars(idata) -> list[str]:
     return [v for v in post.data_vars if v != "z"]
 
 
+def _worst(column, pick):
+    values = column.dropna()
+    if values.empty:
+        return None
+    return str(values.idxmax() if pick is max else values.idxmin())
+
+
 def convergence(idata) -> dict:
     """R-hat, ESS, divergences, tree depth, BFMI (NUTS) or acceptance and tau (emcee)."""
     names = _diagnostic_vars(idata)
@@ -41,8 +48,9 @@ def convergence(idata) -> dict:
         "rhat_max": float(summ["r_hat"].max()),
         "ess_bulk_min": float(summ["ess_bulk"].min()),
         "ess_tail_min": float(summ["ess_tail"].min()),
-        "worst_rhat_variable": str(summ["r_hat"].idxmax()),
-        "worst_ess_variable": str(summ["ess_bulk"].idxmin()),
+        # R-hat needs >= 2 chains; with one chain arviz gives NaN and we report null.
+        "worst_rhat_variable": _worst(summ["r_hat"], max),
+        "worst_ess_variable": _worst(summ["ess_bulk"], min),
     }
     stats = idata.sample_stats
     if "diverging" in stats:

@@ -256,7 +256,8 @@ def _autocorrelation(chain: np.ndarray, kept_draws: int, ensemble: int):
     """
     n, walkers, _ = chain.shape
     try:
-        tau = emcee.autocorr.integrated_time(chain)
+        with np.errstate(invalid="ignore", divide="ignore"):  # a constant coordinate
+            tau = emcee.autocorr.integrated_time(chain)
     except emcee.autocorr.AutocorrError as err:  # too short: the estimate, without logging
         tau = err.tau
     tau = np.asarray(tau, dtype=float)

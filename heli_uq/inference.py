@@ -103,7 +103,7 @@ def _load_chunks(chunks: pathlib.Path):
 def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
              draws: int = 1000, seed: int = 0, chunk: int = 250, resume: bool = False,
              progress: bool = True, max_tree_depth: int = 8, target_accept: float = 0.85,
-             start: Start | None = None) -> SamplerRun:  # fmt: skip
+             adapt_mass_matrix: bool = True, start: Start | None = None) -> SamplerRun:  # fmt: skip
     """NUTS with a dense mass matrix started from the Laplace covariance at the MAP.
 
     Parameters
@@ -117,6 +117,8 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         Draws per saved chunk.
     resume : bool
         Continue from ``out_dir/chunks`` (same settings) instead of starting again.
+    adapt_mass_matrix : bool
+        Keep adapting the (Laplace-initialised) dense mass matrix during warm-up.
     """
     for name, value in (("chains", chains), ("warmup", warmup), ("draws", draws),
                         ("chunk", chunk)):  # fmt: skip
@@ -146,7 +148,8 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     init_values = {k: v for k, v in init_values.items() if k in density.unravel(density.x_init)}
     kernel = NUTS(heli_model, dense_mass=True, inverse_mass_matrix=jnp.asarray(
         info["inverse_mass_matrix"]), init_strategy=init_to_value(values=init_values),
-        max_tree_depth=max_tree_depth, target_accept_prob=target_accept)  # fmt: skip
+        max_tree_depth=max_tree_depth, target_accept_prob=target_accept,
+        adapt_mass_matrix=adapt_mass_matrix)  # fmt: skip
     n_dev = jax.local_device_count()
     method = "parallel" if n_dev >= min(chains, 2) and chains > 1 else "sequential"
     n_chunks = -(-draws // chunk)

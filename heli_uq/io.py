@@ -6,7 +6,7 @@ import os
 import pathlib
 import tempfile
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "publish"]
+__all__ = ["atomic_write_bytes", "atomic_write_text", "publish", "read_json_object"]
 
 
 def _umask() -> int:
@@ -42,3 +42,32 @@ def atomic_write_bytes(path, data: bytes) -> pathlib.Path:
 def atomic_write_text(path, text: str) -> pathlib.Path:
     """Text version of :func:`atomic_write_bytes` (UTF-8)."""
     return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def read_json_object(path, what: str) -> dict:
+    """Read a JSON object from ``path``; errors name the file, line and column.
+
+    Raises
+    ------
+    heli_uq.errors.ParameterError
+        Missing file, invalid JSON, or a JSON value that is not an object.
+    """
+    import json
+
+    from heli_uq.errors import ParameterError
+
+    path = os.fspath(path)
+    try:
+        with open(path, encoding="utf-8-sig") as fh:
+            raw = json.load(fh)
+    except FileNotFoundError:
+        raise ParameterError(f"{path}: no such {what} file") from None
+    except json.JSONDecodeError as exc:
+        raise ParameterError(
+            f"{path}, line {exc.lineno}, column {exc.colno}: invalid JSON ({exc.msg})"
+        ) from None
+    if not isinstance(raw, dict):
+        raise ParameterError(
+            f"{path}: expected a JSON object of parameter names, found {type(raw).__name__}"
+        )
+    return raw

@@ -119,14 +119,23 @@ def make_problem(record: Experiment, train=None, test=None, *, priors=None,
 def heli_model(problem: Problem, y=None):
     """numpyro model of the rig record (see module docstring).
 
-    Sites: ``z`` (coordinates, improper flat; the prior enters as the factor
-    ``prior``), ``theta0, psi0, omega_theta0, omega_psi0``, ``sigma`` (2,), ``rho`` (2,)
+    Sites: ``z`` (the sampled coordinates ``coords.sampled_names``, improper flat; the
+    prior enters as the factor ``prior``), ``scale_noise`` (standard normal; the common
+    scale ``log_J_pitch`` is its exact conditional prior, see :mod:`heli_uq.reparam`), ``theta0, psi0, omega_theta0, omega_psi0``, ``sigma`` (2,), ``rho`` (2,)
     for AR(1), deterministic physical parameters by Table 2 name, and ``y`` (observed,
     (n_train, 2)) or ``y_pred`` ((N, 2), when ``y`` is None).
     """
     coords = problem.coords
-    z = numpyro.sample("z", dist.ImproperUniform(constraints.real_vector, (), (coords.dim,)))
-    numpyro.factor("prior", coords.log_prior(z))
+    n_z = len(coords.sampled_names)
+    z = numpyro.sample("z", dist.ImproperUniform(constraints.real_vector, (), (n_z,)))
+    if coords.marginal_scale:
+        log_marginal, mean, sd = coords.scale_conditional(z)
+        numpyro.factor("prior", log_marginal)
+        noise = numpyro.sample("scale_noise", dist.Normal(0.0, 1.0))
+        log_m11 = numpyro.deterministic("log_J_pitch", mean + sd * noise)
+        z = jnp.concatenate([log_m11[None], z])
+    else:
+        numpyro.factor("prior", coords.log_prior(z))
     phys = coords.to_physical(z)
     for name in coords.free:
         numpyro.deterministic(name, phys[name])

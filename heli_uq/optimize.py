@@ -65,8 +65,9 @@ class LogDensity:
 def default_init_values(problem: Problem, params=None) -> dict:
     """Constrained initial values: parameters (default Table 1), first angles, at rest."""
     params = dict(TABLE1 if params is None else params)
+    z = jnp.asarray(problem.coords.from_physical(params))
     values = {
-        "z": jnp.asarray(problem.coords.from_physical(params)),
+        "z": z[1:] if problem.coords.marginal_scale else z,
         "theta0": jnp.asarray(problem.y[0, 0]),
         "psi0": jnp.asarray(problem.y[0, 1]),
         "omega_theta0": jnp.asarray(0.0),
@@ -75,6 +76,9 @@ def default_init_values(problem: Problem, params=None) -> dict:
     }
     if problem.error == "ar1":
         values["rho"] = jnp.array([0.9, 0.9])
+    if problem.coords.marginal_scale:
+        _, mean, sd = problem.coords.scale_conditional(z[1:])
+        values["scale_noise"] = (z[0] - mean) / sd
     return values
 
 
@@ -212,15 +216,19 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0) -> 
                   for p, v in params.items()}  # fmt: skip
         values = default_init_values(problem, params)
         x0 = np.array([values[s] for s in ("theta0", "psi0", "omega_theta0", "omega_psi0")])
-        z, x0, _ = (np.asarray(a) for a in fit(values["z"], x0))
+        z_full = coords.from_physical(params)
+        z, x0, _ = (np.asarray(a) for a in fit(z_full, x0))
         ys = np.asarray(simulate(coords.to_physical(jnp.asarray(z)), x0, problem.u[:n_train],
                                  problem.dt))  # fmt: skip
         resid = ys[:, :2] - problem.y[:n_train]
         if not np.all(np.isfinite(resid)):
             continue
-        sites = {"z": jnp.asarray(z), "theta0": x0[0], "psi0": x0[1], "omega_theta0": x0[2],
+        sites = {"z": jnp.asarray(z[1:] if coords.marginal_scale else z), "theta0": x0[0], "psi0": x0[1], "omega_theta0": x0[2],
                  "omega_psi0": x0[3],
                  "sigma": jnp.log(jnp.maximum(jnp.sqrt(jnp.mean(resid**2, axis=0)), 1e-4))}  # fmt: skip
+        if coords.marginal_scale:
+            _, mean, sd = coords.scale_conditional(jnp.asarray(z[1:]))
+            sites["scale_noise"] = (z[0] - mean) / sd
         if problem.error == "ar1":
             lag1 = np.sum(resid[1:] * resid[:-1], axis=0) / np.sum(resid**2, axis=0)
             rho = np.clip(lag1, 0.01, 0.995)

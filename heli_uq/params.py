@@ -7,7 +7,6 @@ package is ``(theta, psi, omega_theta, omega_psi)`` in (rad, rad, rad/s, rad/s).
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from collections.abc import Mapping
@@ -168,21 +167,10 @@ def load_params_json(path: str | os.PathLike) -> dict[str, float]:
     ParameterError
         Missing file, invalid JSON, not an object, or any :func:`check_params` failure.
     """
+    from heli_uq.io import read_json_object
+
     path = os.fspath(path)
-    try:
-        with open(path, encoding="utf-8-sig") as fh:
-            raw = json.load(fh)
-    except FileNotFoundError:
-        raise ParameterError(f"{path}: no such parameter file") from None
-    except json.JSONDecodeError as exc:
-        raise ParameterError(
-            f"{path}, line {exc.lineno}, column {exc.colno}: invalid JSON ({exc.msg})"
-        ) from None
-    if not isinstance(raw, dict):
-        raise ParameterError(
-            f"{path}: expected a JSON object of parameter names to numbers, "
-            f"found {type(raw).__name__}"
-        )
+    raw = read_json_object(path, "parameter")
     return check_params(raw, where=path)
 
 

@@ -22,7 +22,6 @@ rho (AR(1), per output)   uniform(0, 1)                100 Hz model error is aut
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 from collections.abc import Mapping
@@ -158,16 +157,10 @@ def update_priors(priors: Mapping[str, Prior], changes: Mapping, *, where="prior
 
 def load_priors_json(path: str | os.PathLike, priors: Mapping[str, Prior] | None = None):
     """Read ``{"name": spec, ...}`` from a JSON file and apply it to ``priors``."""
+    from heli_uq.io import read_json_object
+
     path = os.fspath(path)
-    try:
-        with open(path, encoding="utf-8-sig") as fh:
-            raw = json.load(fh)
-    except FileNotFoundError:
-        raise ParameterError(f"{path}: no such prior file") from None
-    except json.JSONDecodeError as exc:
-        raise ParameterError(f"{path}, line {exc.lineno}: invalid JSON ({exc.msg})") from None
-    if not isinstance(raw, dict):
-        raise ParameterError(f"{path}: expected a JSON object of parameter names to priors")
+    raw = read_json_object(path, "prior")
     return update_priors(priors or default_priors(), raw, where=path)
 
 

@@ -20,8 +20,13 @@ log_<D>_ratio (2)       log(D / M11)                     yes
 ======================  ===============================  ==================================
 
 The two unidentified directions become straight coordinate axes, along which the
-posterior is the (conditional) prior, so NUTS with a dense mass matrix moves along them
-freely.  The priors stay the user's priors on the *physical* parameters: the log
+posterior is the (conditional) prior.  The common scale is handled *exactly*: ``m``,
+``J_bc``, ``J_s``, ``K_*`` and ``D_*`` are ``M11`` times functions of the other
+coordinates while ``r_c`` and ``h`` do not depend on ``M11``, so with log-normal priors
+the conditional prior of ``log M11`` is Gaussian (:meth:`Coordinates.scale_conditional`).
+The model integrates it out of the prior of the other coordinates and draws it as
+``mean + sd * scale_noise`` with ``scale_noise ~ N(0, 1)``, a direction the likelihood
+never sees: NUTS no longer has to explore a prior-wide ridge.  The priors stay the user's priors on the *physical* parameters: the log
 density includes ``log |det d w / d z|`` where ``w`` are the coordinates in which each
 prior is Gaussian (log for log-normal priors).  Any other choice of free parameters
 falls back to plain log coordinates (``strategy="log"``).
@@ -96,6 +101,38 @@ class Coordinates:
     def dim(self) -> int:
         return len(self.names)
 
+    @property
+    def marginal_scale(self) -> bool:
+        """True when ``log_J_pitch`` is integrated out (identifiable strategy)."""
+        return self.resolved == "identifiable"
+
+    @property
+    def sampled_names(self) -> tuple[str, ...]:
+        """Coordinates the sampler moves in (``names`` without ``log_J_pitch`` if marginal)."""
+        return self.names[1:] if self.marginal_scale else self.names
+
+    def _scale_weights(self):
+        """Per free parameter: 1 if its prior coordinate shifts with log M11, else 0."""
+        return jnp.asarray([0.0 if n in ("r_c", "h") else 1.0 for n in self.free])
+
+    def scale_conditional(self, z_rest):
+        """Exact conditional prior of ``log M11`` given the other coordinates.
+
+        Returns ``(log_marginal, mean, sd)``: the log prior density of ``z_rest`` with
+        ``log M11`` integrated out (Jacobian included), and the Gaussian conditional.
+        """
+        z0 = jnp.concatenate([jnp.zeros(1), z_rest])
+        w0 = self._prior_coordinates(z0)
+        mu = jnp.asarray([_prior_mean(self.priors[n]) for n in self.free])
+        sd = jnp.asarray([self.priors[n].b for n in self.free])
+        e = self._scale_weights()
+        lam = jnp.sum(e / sd**2)
+        b = jnp.sum(e * (mu - w0) / sd**2)
+        base = jnp.sum(-0.5 * ((w0 - mu) / sd) ** 2 - jnp.log(sd) - 0.5 * jnp.log(2 * jnp.pi))
+        _, logdet = jnp.linalg.slogdet(jax.jacfwd(self._prior_coordinates)(z0))
+        log_marginal = base + 0.5 * b * b / lam - 0.5 * jnp.log(lam) + 0.5 * jnp.log(2 * jnp.pi)
+        return log_marginal + logdet, b / lam, 1.0 / jnp.sqrt(lam)
+
     # ------------------------------------------------------------------ maps
     def to_physical(self, z) -> dict:
         """All twelve parameters (jnp scalars, SI) from coordinates ``z`` of shape (dim,)."""
@@ -150,3 +187,7 @@ class Coordinates:
             return lp
         _, logdet = jnp.linalg.slogdet(jax.jacfwd(self._prior_coordinates)(z))
         return lp + logdet
+
+
+def _prior_mean(prior: Prior) -> float:
+    return math.log(prior.a) if prior.kind == "lognormal" else prior.a

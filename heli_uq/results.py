@@ -52,7 +52,7 @@ def posterior_predictive(problem: Problem, samples: dict, *, draws_per_chain=PP_
     """
     chains, n_draws = samples["z"].shape[:2]
     idx = _thin_index(n_draws, draws_per_chain)
-    keep = ("z", "theta0", "psi0", "omega_theta0", "omega_psi0", "sigma", "rho")
+    keep = ("z", "scale_noise", "theta0", "psi0", "omega_theta0", "omega_psi0", "sigma", "rho")
     flat = {k: jnp.asarray(v[:, idx].reshape((-1,) + v.shape[2:]))
             for k, v in samples.items() if k in keep}  # fmt: skip
     pred = Predictive(heli_model, posterior_samples=flat, return_sites=["y_pred", "y_sim"],
@@ -67,7 +67,8 @@ def _log_likelihood(problem: Problem, samples: dict, y_sim_all=None):
     n = problem.n_train
     y = jnp.asarray(problem.y[:n])
     flat = {k: jnp.asarray(v.reshape((-1,) + v.shape[2:])) for k, v in samples.items()
-            if k in ("z", "theta0", "psi0", "omega_theta0", "omega_psi0", "sigma", "rho")}  # fmt: skip
+            if k in ("z", "scale_noise", "theta0", "psi0", "omega_theta0", "omega_psi0", "sigma",
+                     "rho")}  # fmt: skip
     pred = Predictive(heli_model, posterior_samples=flat, return_sites=["y_sim"], parallel=True)
     sims = pred(jax.random.PRNGKey(0), problem)["y_sim"][:, :n]
     rho = flat.get("rho")
@@ -83,7 +84,7 @@ def to_inference_data(problem: Problem, run, *, prior_draws: int = 500, seed: in
                       pp_draws_per_chain: int = PP_DRAWS_PER_CHAIN) -> az.InferenceData:  # fmt: skip
     """Build the package's InferenceData from a :class:`~heli_uq.inference.SamplerRun`."""
     s = run.samples
-    coords = {"output": OUTPUTS, "coordinate": list(problem.coords.names),
+    coords = {"output": OUTPUTS, "coordinate": list(problem.coords.sampled_names),
               "time": problem.t, "time_train": problem.t[: problem.n_train]}  # fmt: skip
     dims = {"sigma": ["output"], "rho": ["output"], "z": ["coordinate"],
             "y": ["time_train", "output"], "y_pred": ["time", "output"],
@@ -100,12 +101,13 @@ def to_inference_data(problem: Problem, run, *, prior_draws: int = 500, seed: in
         stats["acceptance_rate"] = stats.pop("accept_prob")
 
     ll = _log_likelihood(problem, s)
+    ll_dims, ll_coords = {"y": ["time_train", "output"]}, {}
     if ll.size > MAX_LOGLIK_VALUES:
         nb = problem.n_train // LOGLIK_BLOCK
         ll = ll[:, :, : nb * LOGLIK_BLOCK].reshape(ll.shape[0], ll.shape[1], nb, LOGLIK_BLOCK, 2)
         ll = ll.sum(axis=3)
-        dims["y"] = ["time_block", "output"]
-        coords["time_block"] = problem.t[: nb * LOGLIK_BLOCK : LOGLIK_BLOCK]
+        ll_dims = {"y": ["time_block", "output"]}
+        ll_coords = {"time_block": problem.t[: nb * LOGLIK_BLOCK : LOGLIK_BLOCK]}
 
     idx, y_pred, y_sim = posterior_predictive(problem, s, draws_per_chain=pp_draws_per_chain,
                                               seed=seed)  # fmt: skip
@@ -119,7 +121,7 @@ def to_inference_data(problem: Problem, run, *, prior_draws: int = 500, seed: in
     if problem.test is not None:
         test_mask[problem.test[0] : problem.test[1]] = True
     idata = az.from_dict(
-        posterior=posterior, sample_stats=stats, log_likelihood={"y": ll}, prior=prior,
+        posterior=posterior, sample_stats=stats, prior=prior,
         observed_data={"y": problem.y[: problem.n_train]},
         constant_data={"u": problem.u, "y_obs": problem.y, "train_mask": train_mask,
                        "test_mask": test_mask},
@@ -131,6 +133,8 @@ def to_inference_data(problem: Problem, run, *, prior_draws: int = 500, seed: in
         dims={"y_pred": ["time", "output"], "y_sim": ["time", "output"]},
     )  # fmt: skip
     idata.extend(pp)
+    idata.extend(az.from_dict(log_likelihood={"y": ll}, coords={**coords, **ll_coords},
+                              dims=ll_dims))  # fmt: skip
     info = {k: v for k, v in run.info.items() if k not in ("x_map", "inverse_mass_matrix")}
     idata.posterior.attrs.update({
         "sampler_info": json.dumps(info, default=lambda o: np.asarray(o).tolist()),

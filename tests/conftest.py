@@ -4,6 +4,7 @@ import os
 import pathlib
 
 import jax
+import pytest
 
 jax.config.update("jax_enable_x64", True)
 
@@ -11,3 +12,24 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 _SHARED_DATA = REPO.parent / "shared" / "data"
 if "HELI_UQ_DATA" not in os.environ and _SHARED_DATA.is_dir():
     os.environ["HELI_UQ_DATA"] = str(_SHARED_DATA)
+
+
+# Shared synthetic posterior problem (compiling the model is the expensive part, so the
+# emcee and NUTS tests share one problem and one MAP start).
+SYNTHETIC_NOISE = 0.003  # rad: the true residual sd of the shared synthetic record
+
+
+@pytest.fixture(scope="session")
+def synthetic_problem():
+    from heli_uq.data import synthetic_experiment
+    from heli_uq.model import make_problem
+
+    record = synthetic_experiment(duration=4.0, seed=1, noise_std=(SYNTHETIC_NOISE,) * 2)
+    return make_problem(record, error="iid")
+
+
+@pytest.fixture(scope="session")
+def synthetic_start(synthetic_problem):
+    from heli_uq.inference import prepare_start
+
+    return prepare_start(synthetic_problem, n_starts=1, seed=0)

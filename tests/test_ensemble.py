@@ -7,11 +7,9 @@ import pytest
 from jax.flatten_util import ravel_pytree
 
 from heli_uq import ensemble
-from heli_uq.data import SYNTHETIC_PARAMS, synthetic_experiment
+from heli_uq.data import SYNTHETIC_PARAMS
 from heli_uq.ensemble import run_emcee
 from heli_uq.errors import ParameterError
-from heli_uq.inference import prepare_start
-from heli_uq.model import make_problem
 
 NOISE_STD = 0.003  # rad, the truth of sigma
 #: The posterior mean of an identified quantity lies within this many posterior sd of the truth.
@@ -24,7 +22,7 @@ LP_RTOL = 1e-9
 MAIN = dict(ensembles=2, steps=400, chunk=200, seed=0)
 #: Small runs for reproducibility and resume (3 chunks per ensemble).
 SMALL = dict(ensembles=2, steps=120, chunk=40, burn=40, thin=2, seed=5)
-UNCONSTRAINED_SITES = ("omega_psi0", "omega_theta0", "psi0", "sigma", "theta0", "z")
+UNCONSTRAINED_SITES = ("omega_psi0", "omega_theta0", "psi0", "scale_noise", "sigma", "theta0", "z")
 
 
 def gravity_ratio(p):
@@ -34,14 +32,13 @@ def gravity_ratio(p):
 
 
 @pytest.fixture(scope="module")
-def problem():
-    record = synthetic_experiment(duration=4.0, seed=1, noise_std=(NOISE_STD, NOISE_STD))
-    return make_problem(record, error="iid")
+def problem(synthetic_problem):
+    return synthetic_problem
 
 
 @pytest.fixture(scope="module")
-def start(problem):
-    return prepare_start(problem, n_starts=1, seed=0)
+def start(synthetic_start):
+    return synthetic_start
 
 
 @pytest.fixture(scope="module")
@@ -75,12 +72,12 @@ def test_shapes_sites_and_info(main_run, problem, start):
     walkers = 2 * start.density.dim + 2
     burn = MAIN["steps"] // 2
     draws = (MAIN["steps"] - burn) * walkers
-    expected = set(UNCONSTRAINED_SITES) | set(problem.coords.free)
+    expected = set(UNCONSTRAINED_SITES) | set(problem.coords.free) | {"log_J_pitch"}
     assert set(main_run.samples) == expected
     for k, v in main_run.samples.items():
         assert v.shape[:2] == (MAIN["ensembles"], draws), k
         assert np.all(np.isfinite(v)), k
-    assert main_run.samples["z"].shape[2] == problem.coords.dim
+    assert main_run.samples["z"].shape[2] == len(problem.coords.sampled_names)
     assert main_run.samples["sigma"].shape[2] == 2
     assert main_run.stats["lp"].shape == (MAIN["ensembles"], draws)
     info = main_run.info

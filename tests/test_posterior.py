@@ -1,0 +1,149 @@
+"""The posterior workflow on a short synthetic record with known truth (CI-sized)."""
+
+import json
+
+import arviz as az
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import SYNTHETIC_NOISE
+
+from heli_uq import inference
+from heli_uq.cli import main
+from heli_uq.data import SYNTHETIC_PARAMS, synthetic_experiment
+from heli_uq.diagnostics import summarize
+from heli_uq.ensemble import run_emcee
+from heli_uq.errors import ParameterError
+from heli_uq.inference import run_nuts
+from heli_uq.model import make_problem
+from heli_uq.optimize import log_density_setup
+from heli_uq.results import to_inference_data
+
+NUTS = dict(chains=2, warmup=150, draws=150, chunk=75, seed=0, progress=False)
+#: The 90 % interval of the residual scale must contain the truth.
+INTERVAL = (0.05, 0.95)
+#: The posterior mean of the gravity ratio lies within this many posterior sd of the truth.
+TRUTH_SD = 3.0
+#: NUTS and emcee posterior means of an identified quantity differ by at most this many
+#: posterior sd (both runs are short, CI-sized).
+AGREEMENT_SD = 2.0
+
+
+def gravity_ratio(p):
+    return p["m"] * p.get("g", 9.81) * p["r_c"] / (p["J_bc"] + p["m"] * p["r_c"] ** 2
+                                                  + p["m"] * p["h"] ** 2)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def nuts_run(synthetic_problem, synthetic_start, tmp_path_factory):
+    return run_nuts(synthetic_problem, tmp_path_factory.mktemp("nuts"), start=synthetic_start,
+                    **NUTS)  # fmt: skip
+
+
+def test_nuts_recovers_identified_quantities(nuts_run):
+    s = nuts_run.samples
+    truth = gravity_ratio(SYNTHETIC_PARAMS)
+    draws = gravity_ratio(s).ravel()
+    assert abs(draws.mean() - truth) < TRUTH_SD * draws.std(), (draws.mean(), draws.std(), truth)
+    for j in range(2):
+        lo, hi = np.quantile(s["sigma"][..., j], INTERVAL)
+        assert lo < SYNTHETIC_NOISE < hi
+    assert int(nuts_run.stats["diverging"].sum()) == 0
+
+
+def test_nuts_and_emcee_agree(nuts_run, synthetic_problem, synthetic_start, tmp_path):
+    em = run_emcee(synthetic_problem, tmp_path, start=synthetic_start, ensembles=2, steps=600,
+                   seed=1, progress=False)  # fmt: skip
+    a, b = gravity_ratio(nuts_run.samples).ravel(), gravity_ratio(em.samples).ravel()
+    assert abs(a.mean() - b.mean()) < AGREEMENT_SD * a.std()
+
+
+def test_inference_data_groups_and_dims(nuts_run, synthetic_problem):
+    idata = to_inference_data(synthetic_problem, nuts_run, prior_draws=50, pp_draws_per_chain=20)
+    for group in ("posterior", "sample_stats", "log_likelihood", "prior",
+                  "posterior_predictive", "observed_data", "constant_data"):  # fmt: skip
+        assert group in idata.groups(), group
+    n = synthetic_problem.n_train
+    assert idata.posterior["sigma"].dims == ("chain", "draw", "output")
+    assert list(idata.posterior["output"].values) == ["theta", "psi"]
+    assert idata.log_likelihood["y"].shape == (2, NUTS["draws"], n, 2)
+    np.testing.assert_allclose(idata.log_likelihood["time_train"].values, synthetic_problem.t[:n])
+    assert idata.posterior_predictive["y_pred"].dims == ("chain", "draw", "time", "output")
+    assert "m" in idata.posterior and "g" not in idata.posterior  # g is fixed
+    # pointwise log likelihood sums to the model's log likelihood: check one draw
+    ll = float(idata.log_likelihood["y"].isel(chain=0, draw=0).sum())
+    assert np.isfinite(ll)
+    summary = summarize(idata)
+    for key in ("rhat_max", "ess_bulk_min", "ess_tail_min", "divergences", "rmse", "coverage90"):
+        assert key in summary
+    assert summary["rmse"]["theta"] < 5 * SYNTHETIC_NOISE
+    assert 0.8 <= summary["coverage90"]["theta"] <= 1.0
+    assert az.loo(idata).elpd_loo > 0  # 3 mrad noise on 800 observations: a high density
+
+
+def test_failed_solve_is_a_rejected_proposal(synthetic_problem, synthetic_start):
+    density = synthetic_start.density
+    sites = density.unravel(jnp.asarray(synthetic_start.x_map))
+    bad = dict(sites)
+    bad["z"] = sites["z"].at[5].set(40.0)  # K_theta_theta / M11 = e^40: the model blows up
+    x_bad = jax.flatten_util.ravel_pytree(bad)[0]
+    value = density.potential(x_bad)
+    assert np.isposinf(float(value))
+    assert np.isfinite(float(density.potential(jnp.asarray(synthetic_start.x_map))))
+
+
+def test_resume_gives_the_same_draws(synthetic_problem, synthetic_start, tmp_path, monkeypatch):
+    kw = dict(chains=1, warmup=30, draws=40, chunk=20, seed=3, progress=False,
+              start=synthetic_start)  # fmt: skip
+    full = run_nuts(synthetic_problem, tmp_path / "full", **kw)
+    calls = {"n": 0}
+    original = inference._save_chunk
+
+    def interrupt(*args, **kwargs):
+        calls["n"] += 1
+        original(*args, **kwargs)
+        if calls["n"] == 1:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(inference, "_save_chunk", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        run_nuts(synthetic_problem, tmp_path / "cut", **kw)
+    monkeypatch.setattr(inference, "_save_chunk", original)
+    resumed = run_nuts(synthetic_problem, tmp_path / "cut", resume=True, **kw)
+    for k in full.samples:
+        np.testing.assert_array_equal(full.samples[k], resumed.samples[k], err_msg=k)
+
+
+def test_overlapping_windows_and_bad_draws_are_clear_errors(synthetic_problem, tmp_path):
+    record = synthetic_experiment(duration=2.0, seed=2)
+    with pytest.raises(ParameterError, match="overlaps"):
+        make_problem(record, (0.0, 1.5), (1.0, 2.0))
+    with pytest.raises(ParameterError, match="draws"):
+        run_nuts(synthetic_problem, tmp_path, draws=0)
+
+
+def test_cli_sample_end_to_end(tmp_path, capsys):
+    record = synthetic_experiment(duration=2.0, seed=4, noise_std=(0.003, 0.003))
+    csv = tmp_path / "rec.csv"
+    record.to_csv(csv)
+    out = tmp_path / "post"
+    code = main(["sample", "--data", str(csv), "--train", "0:1.5", "--test", "1.5:2",
+                 "--chains", "1", "--warmup", "40", "--draws", "30", "--error", "iid",
+                 "--no-progress", "--out", str(out)])  # fmt: skip
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["windows"]["test"]["n_samples"] == 50
+    assert set(summary["coverage90_test"]) == {"theta", "psi"}
+    idata = az.from_netcdf(out / "posterior.nc")
+    assert idata.posterior.sizes["draw"] == 30
+    assert (out / "bands.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "m" in (out / "summary.csv").read_text()
+    capsys.readouterr()  # forget the successful run's output (arviz logs 1-chain warnings)
+    for bad in (["--train", "0:1.5", "--test", "1:2"], ["--draws", "0"],
+                ["--window", "5:9"], ["--fix", "m=lognormal:1:1"]):  # fmt: skip
+        code = main(["sample", "--data", str(csv), "--out", str(out), *bad])
+        assert code == 2
+        err = capsys.readouterr().err
+        assert err.startswith("heli-uq: error:") and "Traceback" not in err, err
+        assert len(err.strip().splitlines()) == 1, err

@@ -121,7 +121,8 @@ def heli_model(problem: Problem, y=None):
 
     Sites: ``z`` (the sampled coordinates ``coords.sampled_names``, improper flat; the
     prior enters as the factor ``prior``), ``scale_noise`` (standard normal; the common
-    scale ``log_J_pitch`` is its exact conditional prior, see :mod:`heli_uq.reparam`), ``theta0, psi0, omega_theta0, omega_psi0``, ``sigma`` (2,), ``rho`` (2,)
+    scale ``log_J_pitch`` is its exact conditional prior, see :mod:`heli_uq.reparam`),
+    ``theta0, psi0, omega_theta0, omega_psi0``, ``sigma`` (2,), ``rho`` (2,)
     for AR(1), deterministic physical parameters by Table 2 name, and ``y`` (observed,
     (n_train, 2)) or ``y_pred`` ((N, 2), when ``y`` is None).
     """

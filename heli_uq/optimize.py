@@ -223,7 +223,8 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0) -> 
         resid = ys[:, :2] - problem.y[:n_train]
         if not np.all(np.isfinite(resid)):
             continue
-        sites = {"z": jnp.asarray(z[1:] if coords.marginal_scale else z), "theta0": x0[0], "psi0": x0[1], "omega_theta0": x0[2],
+        sites = {"z": jnp.asarray(z[1:] if coords.marginal_scale else z), "theta0": x0[0],
+                 "psi0": x0[1], "omega_theta0": x0[2],
                  "omega_psi0": x0[3],
                  "sigma": jnp.log(jnp.maximum(jnp.sqrt(jnp.mean(resid**2, axis=0)), 1e-4))}  # fmt: skip
         if coords.marginal_scale:

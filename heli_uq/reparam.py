@@ -26,7 +26,8 @@ coordinates while ``r_c`` and ``h`` do not depend on ``M11``, so with log-normal
 the conditional prior of ``log M11`` is Gaussian (:meth:`Coordinates.scale_conditional`).
 The model integrates it out of the prior of the other coordinates and draws it as
 ``mean + sd * scale_noise`` with ``scale_noise ~ N(0, 1)``, a direction the likelihood
-never sees: NUTS no longer has to explore a prior-wide ridge.  The priors stay the user's priors on the *physical* parameters: the log
+never sees: NUTS no longer has to explore a prior-wide ridge.  The priors stay the
+user's priors on the *physical* parameters: the log
 density includes ``log |det d w / d z|`` where ``w`` are the coordinates in which each
 prior is Gaussian (log for log-normal priors).  Any other choice of free parameters
 falls back to plain log coordinates (``strategy="log"``).

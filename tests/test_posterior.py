@@ -17,7 +17,6 @@ from heli_uq.ensemble import run_emcee
 from heli_uq.errors import ParameterError
 from heli_uq.inference import run_nuts
 from heli_uq.model import make_problem
-from heli_uq.optimize import log_density_setup
 from heli_uq.results import to_inference_data
 
 NUTS = dict(chains=2, warmup=150, draws=150, chunk=75, seed=0, progress=False)

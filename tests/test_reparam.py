@@ -78,3 +78,22 @@ def test_log_prior_includes_the_change_of_variables(coords):
     got = float(coords.log_prior(jnp.asarray(z)))
     assert abs(got - expected) < JACOBIAN_RTOL * max(1.0, abs(expected))
     assert np.isfinite(float(jax.grad(coords.log_prior)(jnp.asarray(z)).sum()))
+
+
+def test_scale_is_integrated_out_exactly():
+    """log p(z_rest) = log of the integral over log M11 of p(z), by quadrature; and the
+    conditional of log M11 is the Gaussian the model draws from."""
+    coords = Coordinates(default_priors())
+    z = jnp.asarray(coords.from_physical(TABLE1))
+    log_marginal, mean, sd = coords.scale_conditional(z[1:])
+    grid = np.linspace(float(mean) - 12 * float(sd), float(mean) + 12 * float(sd), 801)
+    log_prior = jax.jit(jax.vmap(lambda s: coords.log_prior(z.at[0].set(s))))
+    logp = np.asarray(log_prior(jnp.asarray(grid)))
+    peak = logp.max()
+    quad = peak + np.log(np.trapezoid(np.exp(logp - peak), grid))
+    assert abs(quad - float(log_marginal)) < 1e-6
+    # the conditional: log p(z) - log p(z_rest) is the Gaussian log density of log M11
+    s = float(mean) + 0.7 * float(sd)
+    cond = float(coords.log_prior(z.at[0].set(s))) - float(log_marginal)
+    gauss = -0.5 * 0.7**2 - np.log(float(sd)) - 0.5 * np.log(2 * np.pi)
+    assert abs(cond - gauss) < 1e-9

@@ -21,7 +21,7 @@ from heli_uq.data import Experiment
 from heli_uq.errors import ParameterError
 from heli_uq.noise import ERROR_MODELS, ar1_noise, conditional_moments
 from heli_uq.params import STATE_NAMES
-from heli_uq.priors import SIGMA_PRIOR, X0_ANGLE_SD, X0_RATE_SD, Prior, default_priors
+from heli_uq.priors import SIGMA_PRIOR, TAU_PRIOR, X0_ANGLE_SD, X0_RATE_SD, Prior, default_priors
 from heli_uq.reparam import Coordinates
 from heli_uq.simulate import solve
 
@@ -122,7 +122,8 @@ def heli_model(problem: Problem, y=None):
     Sites: ``z`` (the sampled coordinates ``coords.sampled_names``, improper flat; the
     prior enters as the factor ``prior``), ``scale_noise`` (standard normal; the common
     scale ``log_J_pitch`` is its exact conditional prior, see :mod:`heli_uq.reparam`),
-    ``theta0, psi0, omega_theta0, omega_psi0``, ``sigma`` (2,), ``rho`` (2,)
+    ``theta0, psi0, omega_theta0, omega_psi0``, ``sigma`` (2,), ``tau`` (2,) and the
+    deterministic ``rho = exp(-dt / tau)`` (2,)
     for AR(1), deterministic physical parameters by Table 2 name, and ``y`` (observed,
     (n_train, 2)) or ``y_pred`` ((N, 2), when ``y`` is None).
     """
@@ -152,7 +153,10 @@ def heli_model(problem: Problem, y=None):
     )
     rho = None
     if problem.error == "ar1":
-        rho = numpyro.sample("rho", dist.Uniform(0.0, 1.0).expand([2]).to_event(1))
+        tau = numpyro.sample(
+            "tau", dist.LogNormal(jnp.log(TAU_PRIOR[0]), TAU_PRIOR[1]).expand([2]).to_event(1)
+        )
+        rho = numpyro.deterministic("rho", jnp.exp(-problem.dt / tau))
     sol = solve(phys, x0, problem.u, problem.dt)
     ok = sol.ok
     # A failed solve is a rejected proposal: -inf log density, finite placeholders.

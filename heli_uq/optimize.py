@@ -75,7 +75,7 @@ def default_init_values(problem: Problem, params=None) -> dict:
         "sigma": jnp.array([0.05, 0.05]),
     }
     if problem.error == "ar1":
-        values["rho"] = jnp.array([0.9, 0.9])
+        values["tau"] = jnp.array([0.5, 0.5])
     if problem.coords.marginal_scale:
         _, mean, sd = problem.coords.scale_conditional(z[1:])
         values["scale_noise"] = (z[0] - mean) / sd
@@ -196,8 +196,8 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0) -> 
 
     Parameter guesses: Table 1, Table 2 and ``n - 2`` log-normal (sd 0.3) perturbations of
     Table 1 (fixed parameters keep their values).  After the least-squares stage the
-    residual scale ``sigma`` is set to the residual RMS and ``rho`` to the residuals'
-    lag-1 autocorrelation, so the MAP search starts close to its optimum.
+    residual scale ``sigma`` is set to the residual RMS and ``tau`` to the correlation time
+    of the residuals' lag-1 autocorrelation, so the MAP search starts close to its optimum.
     """
     rng = np.random.default_rng(seed)
     coords = problem.coords
@@ -232,8 +232,8 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0) -> 
             sites["scale_noise"] = (z[0] - mean) / sd
         if problem.error == "ar1":
             lag1 = np.sum(resid[1:] * resid[:-1], axis=0) / np.sum(resid**2, axis=0)
-            rho = np.clip(lag1, 0.01, 0.995)
-            sites["rho"] = jnp.log(rho / (1 - rho))
+            rho = np.clip(lag1, 0.01, 0.9999)
+            sites["tau"] = jnp.log(-problem.dt / np.log(rho))
         sites = {name: jnp.asarray(sites[name]) for name in density.unravel(density.x_init)}
         out.append(np.asarray(ravel_pytree(sites)[0]))
     return out

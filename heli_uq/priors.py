@@ -15,7 +15,11 @@ g                         fixed 9.81 m/s^2             known
 theta0, psi0              normal(first sample, 0.05)   rad; measurement noise is a few mrad
 omega_theta0, omega_psi0  normal(0, 0.2)               rad/s; the rig starts nearly at rest
 sigma (per output)        log-normal(0.05 rad, 1.5)    residual scale incl. model error
-rho (AR(1), per output)   uniform(0, 1)                100 Hz model error is autocorrelated
+tau (AR(1), per output)   log-normal(0.5 s, 1.0)       correlation time of the residuals;
+                                                       rho = exp(-dt / tau).  A prior on tau
+                                                       (not a flat one on rho) keeps the
+                                                       AR(1) from turning a misfit into a
+                                                       random walk (rho -> 1, tau -> minutes)
 ========================  ===========================  =====================================
 """
 
@@ -42,12 +46,14 @@ __all__ = [
     "X0_ANGLE_SD",
     "X0_RATE_SD",
     "SIGMA_PRIOR",
+    "TAU_PRIOR",
 ]
 
 DEFAULT_LOG_SIGMA = 2.0
 X0_ANGLE_SD = 0.05  # rad
 X0_RATE_SD = 0.2  # rad/s
 SIGMA_PRIOR = (0.05, 1.5)  # (median [rad], sigma_log) of the per-output residual scale
+TAU_PRIOR = (0.5, 1.0)  # (median [s], sigma_log) of the AR(1) correlation time per output
 _KINDS = ("lognormal", "normal", "fixed")
 
 

@@ -1,7 +1,7 @@
 """One result format: arviz InferenceData with named dims and coords, saved as NetCDF.
 
 Groups: ``posterior`` (physical parameters by Table 2 name, initial state, ``sigma`` and
-``rho`` per ``output``, sampling coordinates ``z`` per ``coordinate``), ``sample_stats``,
+``tau``, ``rho`` per ``output``, sampling coordinates ``z`` per ``coordinate``), ``sample_stats``,
 ``log_likelihood`` (``y`` per observation, or per ``time_block`` of
 :data:`LOGLIK_BLOCK` samples when a full record would make it larger than
 :data:`MAX_LOGLIK_VALUES` values), ``prior``, ``posterior_predictive`` (``y_pred``,
@@ -52,7 +52,7 @@ def posterior_predictive(problem: Problem, samples: dict, *, draws_per_chain=PP_
     """
     chains, n_draws = samples["z"].shape[:2]
     idx = _thin_index(n_draws, draws_per_chain)
-    keep = ("z", "scale_noise", "theta0", "psi0", "omega_theta0", "omega_psi0", "sigma", "rho")
+    keep = ("z", "scale_noise", "theta0", "psi0", "omega_theta0", "omega_psi0", "sigma", "tau")
     flat = {k: jnp.asarray(v[:, idx].reshape((-1,) + v.shape[2:]))
             for k, v in samples.items() if k in keep}  # fmt: skip
     pred = Predictive(heli_model, posterior_samples=flat, return_sites=["y_pred", "y_sim"],
@@ -68,7 +68,7 @@ def _log_likelihood(problem: Problem, samples: dict, y_sim_all=None):
     y = jnp.asarray(problem.y[:n])
     flat = {k: jnp.asarray(v.reshape((-1,) + v.shape[2:])) for k, v in samples.items()
             if k in ("z", "scale_noise", "theta0", "psi0", "omega_theta0", "omega_psi0", "sigma",
-                     "rho")}  # fmt: skip
+                     "tau", "rho")}  # fmt: skip
     pred = Predictive(heli_model, posterior_samples=flat, return_sites=["y_sim"], parallel=True)
     sims = pred(jax.random.PRNGKey(0), problem)["y_sim"][:, :n]
     rho = flat.get("rho")
@@ -86,7 +86,7 @@ def to_inference_data(problem: Problem, run, *, prior_draws: int = 500, seed: in
     s = run.samples
     coords = {"output": OUTPUTS, "coordinate": list(problem.coords.sampled_names),
               "time": problem.t, "time_train": problem.t[: problem.n_train]}  # fmt: skip
-    dims = {"sigma": ["output"], "rho": ["output"], "z": ["coordinate"],
+    dims = {"sigma": ["output"], "rho": ["output"], "tau": ["output"], "z": ["coordinate"],
             "y": ["time_train", "output"], "y_pred": ["time", "output"],
             "y_sim": ["time", "output"], "u": ["time", "input"],
             "y_obs": ["time", "output"], "train_mask": ["time"], "test_mask": ["time"]}  # fmt: skip

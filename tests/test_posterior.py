@@ -146,3 +146,16 @@ def test_cli_sample_end_to_end(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.startswith("heli-uq: error:") and "Traceback" not in err, err
         assert len(err.strip().splitlines()) == 1, err
+
+
+def test_ar1_model_uses_the_correlation_time(tmp_path):
+    """With AR(1) errors the model samples tau and reports rho = exp(-dt / tau)."""
+    record = synthetic_experiment(duration=1.0, seed=5, noise_std=(0.003, 0.003))
+    problem = make_problem(record, error="ar1")
+    from heli_uq.optimize import default_init_values, log_density_setup
+
+    density = log_density_setup(problem, default_init_values(problem))
+    sites = density.constrain(density.unravel(jnp.asarray(density.x_init)))
+    np.testing.assert_allclose(sites["rho"], np.exp(-record.dt / np.asarray(sites["tau"])),
+                               rtol=1e-12)  # fmt: skip
+    assert np.isfinite(float(density.potential(jnp.asarray(density.x_init))))

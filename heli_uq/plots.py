@@ -53,6 +53,14 @@ def _finish(fig, axes, title: str | None) -> None:
     fig.tight_layout()
 
 
+def _pair_panel(ax, t, values, labels, ylabel: str, title: str, **style) -> None:
+    """Plot the pitch (column 0) and yaw (column 1) series of ``values`` on one axis."""
+    for j, (label, color) in enumerate(zip(labels, (_THETA_COLOR, _PSI_COLOR), strict=True)):
+        ax.plot(t, values[:, j], color=color, label=label, **style)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, loc="left", fontsize="medium")
+
+
 def _as_2col(name: str, arr, n: int) -> np.ndarray:
     arr = np.asarray(arr, dtype=float)
     if arr.ndim != 2 or arr.shape[0] != n or arr.shape[1] < 2:
@@ -96,20 +104,12 @@ def plot_simulation(ts, ys, momenta, *, title: str | None = None, data=None) -> 
                   label=r"$\theta$ measured")
         ax_a.plot(t_d, y_deg[:, 1], color="0.55", lw=0.8, alpha=0.9,
                   label=r"$\psi$ measured")
-    ax_a.plot(ts, np.degrees(ys[:, 0]), color=_THETA_COLOR, lw=1.5, label=r"$\theta$ (pitch)")
-    ax_a.plot(ts, np.degrees(ys[:, 1]), color=_PSI_COLOR, lw=1.5, label=r"$\psi$ (yaw)")
-    ax_a.set_ylabel("angle [deg]")
-    ax_a.set_title("(a) angles", loc="left", fontsize="medium")
-
-    ax_b.plot(ts, ys[:, 2], color=_THETA_COLOR, lw=1.5, label=r"$\omega_\theta$")
-    ax_b.plot(ts, ys[:, 3], color=_PSI_COLOR, lw=1.5, label=r"$\omega_\psi$")
-    ax_b.set_ylabel("angular velocity [rad/s]")
-    ax_b.set_title("(b) angular velocities", loc="left", fontsize="medium")
-
-    ax_c.plot(ts, momenta[:, 0], color=_THETA_COLOR, lw=1.5, label=r"$p_\theta$")
-    ax_c.plot(ts, momenta[:, 1], color=_PSI_COLOR, lw=1.5, label=r"$p_\psi$")
-    ax_c.set_ylabel("momentum [kg m$^2$/s]")
-    ax_c.set_title("(c) generalized momenta", loc="left", fontsize="medium")
+    _pair_panel(ax_a, ts, np.degrees(ys[:, :2]), (r"$\theta$ (pitch)", r"$\psi$ (yaw)"),
+                "angle [deg]", "(a) angles", lw=1.5)
+    _pair_panel(ax_b, ts, ys[:, 2:], (r"$\omega_\theta$", r"$\omega_\psi$"),
+                "angular velocity [rad/s]", "(b) angular velocities", lw=1.5)
+    _pair_panel(ax_c, ts, momenta, (r"$p_\theta$", r"$p_\psi$"),
+                "momentum [kg m$^2$/s]", "(c) generalized momenta", lw=1.5)
 
     for ax in (ax_a, ax_b, ax_c):
         _legend(ax)
@@ -138,17 +138,10 @@ def plot_experiment(exp) -> Figure:
     u_ext = np.vstack([u, u[-1:]])
 
     fig, (ax_u, ax_y) = _new_figure(2, (9.0, 6.0))
-    ax_u.plot(t_u, u_ext[:, 0], drawstyle="steps-post", color=_THETA_COLOR, lw=1.2,
-              label=r"$u_\theta$ (pitch motor)")
-    ax_u.plot(t_u, u_ext[:, 1], drawstyle="steps-post", color=_PSI_COLOR, lw=1.2,
-              label=r"$u_\psi$ (yaw motor)")
-    ax_u.set_ylabel("voltage [V]")
-    ax_u.set_title("(a) input voltages", loc="left", fontsize="medium")
-
-    ax_y.plot(t, y_deg[:, 0], color=_THETA_COLOR, lw=1.2, label=r"$\theta$ (pitch)")
-    ax_y.plot(t, y_deg[:, 1], color=_PSI_COLOR, lw=1.2, label=r"$\psi$ (yaw)")
-    ax_y.set_ylabel("angle [deg]")
-    ax_y.set_title("(b) measured angles", loc="left", fontsize="medium")
+    _pair_panel(ax_u, t_u, u_ext, (r"$u_\theta$ (pitch motor)", r"$u_\psi$ (yaw motor)"),
+                "voltage [V]", "(a) input voltages", lw=1.2, drawstyle="steps-post")
+    _pair_panel(ax_y, t, y_deg, (r"$\theta$ (pitch)", r"$\psi$ (yaw)"),
+                "angle [deg]", "(b) measured angles", lw=1.2)
 
     for ax in (ax_u, ax_y):
         _legend(ax)

@@ -21,7 +21,7 @@ from heli_uq.data import Experiment
 from heli_uq.errors import ParameterError
 from heli_uq.noise import ERROR_MODELS, ar1_noise, conditional_moments
 from heli_uq.params import STATE_NAMES
-from heli_uq.priors import SIGMA_PRIOR, TAU_PRIOR, X0_ANGLE_SD, X0_RATE_SD, Prior, default_priors
+from heli_uq.priors import SIGMA_PRIOR, TAU_PRIOR, X0_ANGLE_SD, X0_RATE_SD, default_priors
 from heli_uq.reparam import Coordinates
 from heli_uq.simulate import solve
 
@@ -170,8 +170,3 @@ def heli_model(problem: Problem, y=None):
     n = problem.n_train
     loc, scale = conditional_moments(sim[:n], y, sigma, rho)
     numpyro.sample("y", dist.Normal(loc, scale).to_event(0), obs=y)
-
-
-def prior_of(name: str, problem: Problem) -> Prior:
-    """The prior of a physical parameter in ``problem``."""
-    return problem.coords.priors[name]

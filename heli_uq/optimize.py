@@ -144,7 +144,7 @@ def least_squares_fit(problem: Problem, *, max_steps: int = 100):
     n, d = problem.n_train, coords.dim
     u, y = jnp.asarray(problem.u[:n]), jnp.asarray(problem.y[:n])
     sigma = jnp.asarray(LSQ_SIGMA)
-    mu = jnp.asarray([math_log_or_value(coords.priors[k]) for k in coords.free])
+    mu = jnp.asarray([coords.priors[k].coordinate_mean for k in coords.free])
     sd = jnp.asarray([coords.priors[k].b for k in coords.free])
     x0_mu = jnp.concatenate([jnp.asarray(problem.y[0]), jnp.zeros(2)])
     x0_sd = jnp.asarray([X0_ANGLE_SD, X0_ANGLE_SD, X0_RATE_SD, X0_RATE_SD])
@@ -167,13 +167,6 @@ def least_squares_fit(problem: Problem, *, max_steps: int = 100):
         return v[:d], v[d:], 0.5 * jnp.sum(residuals(v, None) ** 2)
 
     return fit
-
-
-def math_log_or_value(prior) -> float:
-    """Mean of a prior in its Gaussian coordinate (log median for log-normal)."""
-    import math
-
-    return math.log(prior.a) if prior.kind == "lognormal" else prior.a
 
 
 def find_map(density: LogDensity, starts: list[np.ndarray], *, maxiter: int = 1000,

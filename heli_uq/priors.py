@@ -89,9 +89,14 @@ class Prior:
         """The coordinate the prior is Gaussian in: log for log-normal, identity otherwise."""
         return jnp.log(value) if self.kind == "lognormal" else value
 
+    @property
+    def coordinate_mean(self) -> float:
+        """Mean of the prior in its Gaussian coordinate (log median for log-normal)."""
+        return math.log(self.a) if self.kind == "lognormal" else self.a
+
     def log_density_coordinate(self, w):
         """Log density of the Gaussian in :meth:`to_coordinate` coordinates."""
-        mu = math.log(self.a) if self.kind == "lognormal" else self.a
+        mu = self.coordinate_mean
         return -0.5 * ((w - mu) / self.b) ** 2 - math.log(self.b) - 0.5 * math.log(2 * math.pi)
 
     def sample(self, rng: np.random.Generator, size=None):

@@ -124,7 +124,7 @@ class Coordinates:
         """
         z0 = jnp.concatenate([jnp.zeros(1), z_rest])
         w0 = self._prior_coordinates(z0)
-        mu = jnp.asarray([_prior_mean(self.priors[n]) for n in self.free])
+        mu = jnp.asarray([self.priors[n].coordinate_mean for n in self.free])
         sd = jnp.asarray([self.priors[n].b for n in self.free])
         e = self._scale_weights()
         lam = jnp.sum(e / sd**2)
@@ -189,6 +189,3 @@ class Coordinates:
         _, logdet = jnp.linalg.slogdet(jax.jacfwd(self._prior_coordinates)(z))
         return lp + logdet
 
-
-def _prior_mean(prior: Prior) -> float:
-    return math.log(prior.a) if prior.kind == "lognormal" else prior.a

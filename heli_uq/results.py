@@ -71,11 +71,11 @@ def _log_likelihood(problem: Problem, samples: dict, y_sim_all=None):
                      "tau", "rho")}  # fmt: skip
     pred = Predictive(heli_model, posterior_samples=flat, return_sites=["y_sim"], parallel=True)
     sims = pred(jax.random.PRNGKey(0), problem)["y_sim"][:, :n]
-    rho = flat.get("rho")
-    ll = jax.vmap(lambda s, sg, r: pointwise_log_likelihood(s, y, sg, r))(
-        sims, flat["sigma"], rho if rho is not None else jnp.zeros_like(flat["sigma"])
-    ) if rho is not None else jax.vmap(lambda s, sg: pointwise_log_likelihood(s, y, sg))(
-        sims, flat["sigma"])  # fmt: skip
+    if "rho" in flat:
+        ll = jax.vmap(lambda s, sg, r: pointwise_log_likelihood(s, y, sg, r))(
+            sims, flat["sigma"], flat["rho"])
+    else:
+        ll = jax.vmap(lambda s, sg: pointwise_log_likelihood(s, y, sg))(sims, flat["sigma"])
     chains, draws = samples["z"].shape[:2]
     return np.asarray(ll).reshape(chains, draws, n, 2)
 

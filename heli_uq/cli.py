@@ -29,7 +29,6 @@ if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", "")
 
 import argparse
 import math
-import os
 import sys
 from pathlib import Path
 

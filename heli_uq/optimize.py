@@ -151,11 +151,11 @@ def least_squares_fit(problem: Problem, *, max_steps: int = 100):
 
     def residuals(v, _):
         z, x_init = v[:d], v[d:]
-        ys = simulate(coords.to_physical(z), x_init, u, problem.dt, gradients="autodiff")
+        phys = coords.to_physical(z)
+        ys = simulate(phys, x_init, u, problem.dt, gradients="autodiff")
         r = ((ys[:, :2] - y) / sigma).ravel()
         r = jnp.where(jnp.isfinite(r), r, 1e6)
-        w = jnp.stack([coords.priors[k].to_coordinate(coords.to_physical(z)[k])
-                       for k in coords.free])  # fmt: skip
+        w = jnp.stack([coords.priors[k].to_coordinate(phys[k]) for k in coords.free])
         return jnp.concatenate([r, (w - mu) / sd, (x_init - x0_mu) / x0_sd])
 
     solver = optx.LevenbergMarquardt(rtol=1e-8, atol=1e-10)

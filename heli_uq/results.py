@@ -14,6 +14,9 @@ Groups: ``posterior`` (physical parameters by Table 2 name, initial state, ``sig
 from __future__ import annotations
 
 import json
+import os
+import pathlib
+import tempfile
 
 import arviz as az
 import jax
@@ -148,10 +151,6 @@ def to_inference_data(problem: Problem, run, *, prior_draws: int = 500, seed: in
 
 def save_netcdf(idata: az.InferenceData, path) -> None:
     """Write ``idata`` to NetCDF atomically (temporary file + rename)."""
-    import os
-    import pathlib
-    import tempfile
-
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")

@@ -6,6 +6,9 @@ Subcommands::
     heli-uq simulate --inputs table3|experiment|FILE.csv [--params P.json] [--x0 ...]
                      [--t-end S] [--dt S] --out DIR
     heli-uq data show experimental|FILE.csv [--window a:b] --out DIR
+    heli-uq sample --data experimental|FILE.csv [--train a:b --test c:d] ... --out DIR
+    heli-uq identifiability --data experimental|FILE.csv [--window a:b] [--free NAMES]
+                            [--posterior DIR/posterior.nc] --out DIR
 
 Adding a subcommand is one ``_add_<name>(subparsers)`` function that builds its parser
 and sets ``handler=<function(args) -> int>``, plus one entry in :data:`_SUBCOMMANDS`.
@@ -460,10 +463,99 @@ def _add_sample(subparsers) -> None:
     p.set_defaults(handler=_cmd_sample)
 
 
+def _cmd_identifiability(args) -> int:
+    from heli_uq.data import load_data, parse_window
+    from heli_uq.identifiability import identifiability_report
+    from heli_uq.params import TABLE1, load_params_json
+
+    record = load_data(args.data)
+    if args.window is not None:
+        record = record.window(*parse_window(args.window))
+    priors = _priors_from_args(args)
+    free = None
+    if args.free is not None:
+        free = [n.strip() for n in args.free.split(",") if n.strip()]
+    base = dict(TABLE1)
+    if args.params is not None:
+        base.update(load_params_json(args.params))
+    for name, prior in priors.items():
+        if not prior.free:
+            base[name] = prior.a
+    if args.posterior is not None and not Path(args.posterior).is_file():
+        raise ParameterError(f"--posterior {args.posterior}: no such file")
+    out = _out_dir(args.out)
+    result = identifiability_report(
+        record, out, free=free, base=base, priors=priors, posterior=args.posterior,
+        error=args.error, n_points=args.points, seed=args.seed,
+        log=(lambda _msg: None) if args.quiet else print,
+    )  # fmt: skip
+    st = result["structural"]
+    classes = {}
+    for name, prof in result["practical"]["profiles"].items():
+        classes.setdefault(prof["classification"], []).append(name)
+    print(f"structural rank {st['rank']} of {st['n_parameters']}; null directions: "
+          + (", ".join(d["key"] for d in st["null_directions"]) or "none"))
+    for cls, names in classes.items():
+        print(f"{cls}: {', '.join(names)}")
+    print(f"wrote {out / 'identifiability.md'}, identifiability.json and "
+          f"{len(result['figures'])} figures in {result['timings']['total_s']:.0f} s")
+    return 0
+
+
+def _add_identifiability(subparsers) -> None:
+    p = subparsers.add_parser(
+        "identifiability",
+        help="structural, practical and Bayesian identifiability report",
+        description=(
+            "Identifiability of the Table 2 parameters and the initial state on a record:\n"
+            "structural (rank and named null space of the output sensitivities at the fit\n"
+            "and at random points), practical (Fisher information, profile likelihoods,\n"
+            "classification) and Bayesian (prior-to-posterior contraction from --posterior,\n"
+            "else from the Laplace approximation), cross-checked.\n\n"
+            "Writes DIR/identifiability.md, DIR/identifiability.json and PNG figures."
+        ),
+        epilog=(
+            "examples:\n"
+            "  heli-uq identifiability --data experimental --out out/ident\n"
+            "  heli-uq identifiability --data experimental --fix h=0 --out out/ident_h0\n"
+            "  heli-uq identifiability --data rec.csv --window 0:20 \\\n"
+            "      --free K_theta_theta,D_theta,J_s --posterior out/post/posterior.nc --out out/i"
+        ),
+        formatter_class=_Formatter,
+    )
+    p.add_argument("--data", default="experimental", metavar="experimental|FILE.csv",
+                   help="record (default: experimental)")
+    p.add_argument("--window", metavar="A:B", default=None,
+                   help="use only A <= t < B [s] of the record (default: all)")
+    p.add_argument("--free", metavar="NAMES", default=None,
+                   help="comma-separated free parameters (default: all with a non-fixed prior);"
+                        " the others are fixed at --params / Table 1 values")
+    p.add_argument("--params", metavar="P.json", default=None,
+                   help="values of the fixed parameters and first start of the fit (default:"
+                        " Table 1; names missing from the file take Table 2 values)")
+    p.add_argument("--posterior", metavar="posterior.nc", default=None,
+                   help="posterior of 'heli-uq sample' for the Bayesian view (default: Laplace)")
+    p.add_argument("--error", choices=["iid", "ar1"], default="iid",
+                   help="residual model of the likelihood, noise estimated at the fit (default:"
+                        " iid; with ar1 on the rig record yaw's rho -> 1 and yaw levels carry"
+                        " almost no information)")
+    p.add_argument("--points", type=int, default=5,
+                   help="points of the structural analysis: the fit + random ones (default: 5)")
+    p.add_argument("--priors", metavar="FILE.json", default=None, help="prior overrides file")
+    p.add_argument("--prior", action="append", metavar="NAME=KIND:A:B",
+                   help="override one prior (repeatable)")
+    p.add_argument("--fix", action="append", metavar="NAME=VALUE",
+                   help="fix a parameter (repeatable), e.g. --fix h=0")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.set_defaults(handler=_cmd_identifiability)
+
+
 # --------------------------------------------------------------------------- main
 
 #: Parser builders of the subcommands, in the order shown by ``--help``.
-_SUBCOMMANDS = (_add_run, _add_simulate, _add_data, _add_sample)
+_SUBCOMMANDS = (_add_run, _add_simulate, _add_data, _add_sample, _add_identifiability)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,371 @@
+"""The identifiability report: structural, practical and Bayesian views, cross-checked.
+
+:func:`identifiability_report` runs, on one record:
+
+1. a maximum-likelihood fit of ``w`` (:class:`~heli_uq.sensitivity.ParameterVector`:
+   log of each free positive parameter, ``h``, the initial state) under the chosen error
+   model (:mod:`heli_uq.fisher`);
+2. **structural**: rank and named null space of the output sensitivities at the fit and
+   at random points (:mod:`heli_uq.sensitivity`);
+3. **practical**: Fisher information at the fit and a profile likelihood of every
+   coordinate, classified (:mod:`heli_uq.profiles`);
+4. **Bayesian**: prior-to-posterior contraction ``1 - var_post / var_prior`` per coordinate
+   and along each null direction, from a given ``posterior.nc`` or, without one, from
+   the Gaussian (Laplace) approximation ``(F + P)^-1`` with ``P`` the prior precision;
+5. a **cross-check** of the three views, listing where they disagree and why;
+
+and writes ``identifiability.json``, ``identifiability.md`` and the figures to a directory.
+Priors are the package's (:mod:`heli_uq.priors`): their central ``PRIOR_RANGE_SD``-sigma
+range is the range the profiles explore.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from heli_uq.data import Experiment
+from heli_uq.errors import DataFormatError, ParameterError
+from heli_uq.fisher import fisher_information, fit_likelihood
+from heli_uq.io import atomic_write_text
+from heli_uq.params import PARAM_NAMES, TABLE1
+from heli_uq.priors import X0_ANGLE_SD, X0_RATE_SD, default_priors
+from heli_uq.profiles import THRESHOLD_95, classify, profile_likelihood
+from heli_uq.sensitivity import ParameterVector, random_points, structural_analysis
+
+__all__ = ["identifiability_report", "prior_moments", "posterior_draws", "contraction",
+           "profile_coordinates", "cross_check", "PRIOR_RANGE_SD"]  # fmt: skip
+
+#: Half-width of the explored prior range, in prior standard deviations (of the log for log-normals).
+PRIOR_RANGE_SD = 2.0
+
+#: Contraction below this counts as "the data did not inform it"; above HIGH as "well informed".
+CONTRACTION_LOW = 0.1
+CONTRACTION_HIGH = 0.5
+
+#: A null direction's loading above this counts the coordinate as taking part in it.
+LOADING_PART = 0.1
+
+#: Draws of the Laplace approximation used for the pair plot.
+LAPLACE_DRAWS = 4000
+
+
+def prior_moments(pv: ParameterVector, priors, y0) -> tuple[np.ndarray, np.ndarray]:
+    """Prior mean and sd of every coordinate of ``w`` (Gaussian in ``w`` for the defaults).
+
+    Log-normal parameters: ``log median`` and ``sigma_log``; normal ones (``h``): mean, sd;
+    initial angles: the first measurement and ``X0_ANGLE_SD``; rates: 0 and ``X0_RATE_SD``.
+    """
+    mean, sd = [], []
+    for n in pv.free:
+        p = priors[n]
+        if p.kind == "fixed":
+            raise ParameterError(f"--free {n}: its prior is fixed; free parameters need a prior")
+        if pv.is_log(n) and p.kind != "lognormal":
+            raise ParameterError(f"{n}: the report needs a log-normal prior, found {p.describe()}")
+        mean.append(p.coordinate_mean)
+        sd.append(p.b)
+    if pv.include_x0:
+        mean += [float(y0[0]), float(y0[1]), 0.0, 0.0]
+        sd += [X0_ANGLE_SD, X0_ANGLE_SD, X0_RATE_SD, X0_RATE_SD]
+    return np.asarray(mean), np.asarray(sd)
+
+
+def posterior_draws(path, pv: ParameterVector) -> np.ndarray:
+    """Draws of ``w`` from the ``posterior`` group of a ``posterior.nc``, shape (S, P)."""
+    import arviz as az
+
+    path = pathlib.Path(path)
+    try:
+        idata = az.from_netcdf(path)
+        post = idata.posterior
+    except Exception as exc:  # noqa: BLE001  (any unreadable file: one clear message)
+        raise DataFormatError(f"{path}: not a readable posterior.nc ({type(exc).__name__})") from None
+    cols = []
+    for n in pv.names:
+        if n not in post:
+            raise DataFormatError(f"{path}: posterior has no variable {n!r} (free here); rerun "
+                                  f"with --free matching the posterior's free parameters")  # fmt: skip
+        v = np.asarray(post[n]).reshape(-1)
+        cols.append(np.log(v) if pv.is_log(n) else v)
+    return np.column_stack(cols)
+
+
+def contraction(cov_post: np.ndarray, prior_sd: np.ndarray, directions=()) -> tuple:
+    """Per-coordinate ``1 - var_post / var_prior`` and the same along unit ``directions``."""
+    per = 1.0 - np.diag(cov_post) / prior_sd**2
+    prior_cov = np.diag(prior_sd**2)
+    along = [1.0 - float(v @ cov_post @ v) / float(v @ prior_cov @ v) for v in directions]
+    return per, along
+
+
+#: Starts of the least-squares stage: the base values, Table 2, and perturbations of the base.
+N_STARTS = 3
+
+
+def _least_squares_starts(record, pv: ParameterVector, priors, seed: int) -> list:
+    """Starts of the likelihood fit from the posterior workflow's robust least-squares stage.
+
+    :func:`heli_uq.optimize.least_squares_fit` (Levenberg-Marquardt in the identifiable
+    sampling coordinates, iid residual scales) from ``pv.base``, Table 2 and
+    ``N_STARTS - 2`` log-normal (sd 0.3) perturbations of ``pv.base``; the fits are
+    returned as ``w``, best paper loss V first.  The record has local optima (V = 14.9
+    from Table 1 alone, 0.11 from the best start), so one start is not enough.
+    """
+    from heli_uq.model import make_problem
+    from heli_uq.optimize import least_squares_fit
+    from heli_uq.params import TABLE2
+    from heli_uq.priors import Prior
+    from heli_uq.simulate import simulate
+
+    fixed = {n: Prior("fixed", float(pv.base[n])) for n in PARAM_NAMES if n not in pv.free}
+    problem = make_problem(record, priors=dict(priors, **fixed), error="iid")
+    coords = problem.coords
+    fit = least_squares_fit(problem)
+    rng = np.random.default_rng(seed)
+    guesses = [dict(pv.base), {n: (TABLE2[n] if n in pv.free else pv.base[n]) for n in PARAM_NAMES}]
+    for _ in range(N_STARTS - 2):
+        guesses.append({n: v * (np.exp(rng.normal(0, 0.3)) if n in pv.free and pv.is_log(n) else 1.0)
+                        for n, v in pv.base.items()})  # fmt: skip
+    x_guess = np.array([record.y[0, 0], record.y[0, 1], 0.0, 0.0])
+    out = []
+    for params in guesses:
+        z, x0, _ = fit(coords.from_physical(params), x_guess)
+        phys = {n: float(v) for n, v in coords.to_physical(z).items()}
+        ys = np.asarray(simulate(phys, np.asarray(x0), record.u, record.dt))
+        v = float(np.sum((ys[:, :2] - record.y) ** 2) * record.dt)
+        if np.isfinite(v):
+            out.append((v, pv.from_model(phys, np.asarray(x0))))
+    out.sort(key=lambda item: item[0])
+    return [w for _, w in out]
+
+
+def _profile_bounds(pv, j, prior_mean, prior_sd, w_hat):
+    lo = prior_mean[j] - PRIOR_RANGE_SD * prior_sd[j]
+    hi = prior_mean[j] + PRIOR_RANGE_SD * prior_sd[j]
+    pad = 0.1 * prior_sd[j]
+    return min(lo, w_hat[j] - pad), max(hi, w_hat[j] + pad)
+
+
+def profile_coordinates(pv: ParameterVector, fit, prior_mean, prior_sd, null_basis=None, *,
+                        fim=None, log=None) -> list:  # fmt: skip
+    """Profile and classify every coordinate of ``w`` around a :class:`~heli_uq.fisher.LikelihoodFit`.
+
+    Each profile explores the prior range ``prior_mean +- PRIOR_RANGE_SD * prior_sd``
+    (widened to contain the fit); its first step is the Cramér-Rao standard error,
+    capped at an eighth of the range.  ``null_basis`` (P, k) is the structural null space
+    at the fit, or any set of null vectors spanning it (used for warm starts and to tell
+    structural from practical flatness).
+    """
+    fim = fisher_information(fit.residuals, fit.w) if fim is None else fim
+    jac = np.asarray(jax.jacfwd(fit.residuals)(jnp.asarray(fit.w)))
+    null_basis = np.zeros((pv.dim, 0)) if null_basis is None else np.asarray(null_basis)
+    profiles = []
+    for j, name in enumerate(pv.names):
+        bounds = _profile_bounds(pv, j, prior_mean, prior_sd, fit.w)
+        se = fim.standard_errors[j]
+        step0 = min(se if np.isfinite(se) else np.inf, (bounds[1] - bounds[0]) / 8)
+        values, costs = profile_likelihood(fit.residuals, fit.w, fit.cost, j, bounds, step0, jac,
+                                           null_basis)  # fmt: skip
+        loading = float(np.max(np.abs(null_basis[j]))) if null_basis.size else 0.0
+        profiles.append(classify(name, values, costs, bounds, loading, center=fit.w[j]))
+        if log is not None:
+            log(f"  {name:14s} {profiles[-1].classification}")
+    return profiles
+
+
+def cross_check(names, structural, profiles, per_contraction, null_contraction) -> list[dict]:
+    """Compare the three views; one entry per check with ``agree`` and a reason."""
+    out = []
+    prof = {p.name: p for p in profiles}
+    for d, c in zip(structural["null_directions"], null_contraction):
+        parts = [n for n, v in d["loadings"].items() if abs(v) > LOADING_PART]
+        flat = [n for n in parts if prof[n].flat]
+        agree = len(flat) == len(parts) and c < CONTRACTION_LOW
+        detail = (f"null direction '{d['key']}' ({', '.join(parts)}): profiles flat for "
+                  f"{len(flat)}/{len(parts)}, contraction along it {c:.3f}")
+        if not agree:
+            why = []
+            if len(flat) < len(parts):
+                why.append("a profile that rises along a structural null direction means the "
+                           "direction is null only locally: it runs into a bound (e.g. J_bc > 0 "
+                           "ends the r_c-m-J_bc trade at r_c = M11 / (m r_c)) or a degenerate "
+                           "value, or the re-optimisation did not follow a curved valley")
+            if c >= CONTRACTION_LOW:
+                why.append("contraction along an exactly null direction comes from the prior "
+                           "(non-isotropic prior sds) or from a posterior that is not converged")
+            detail += "; " + "; ".join(why)
+        out.append({"check": "null_direction", "subject": d["key"], "agree": bool(agree),
+                    "detail": detail})  # fmt: skip
+    for i, n in enumerate(names):
+        p = prof[n]
+        c = float(per_contraction[i])
+        if p.classification == "identifiable":
+            width = p.upper - p.lower
+            agree = c >= CONTRACTION_HIGH
+            detail = f"{n}: identifiable, 95 % profile interval width {width:.3g}; contraction {c:.3f}"
+            if not agree:
+                detail += ("; a narrow profile with little contraction means the prior is as "
+                           "narrow as the likelihood, or the posterior and the fit disagree")
+        elif p.classification == "structurally_non_identifiable":
+            in_null = any(abs(d["loadings"].get(n, 0.0)) > LOADING_PART
+                          for d in structural["null_directions"])  # fmt: skip
+            agree = in_null
+            detail = f"{n}: flat profile and on a structural null direction; contraction {c:.3f}"
+            if c >= CONTRACTION_LOW:
+                detail += (" (its marginal contracts because the prior ties it to the identified "
+                           "ratios: along the null direction itself the contraction is ~0)")
+        else:
+            agree = c < 1.0 - 1e-9
+            detail = (f"{n}: practically non-identifiable (profile crosses the threshold on "
+                      f"{int(p.lower is not None) + int(p.upper is not None)} side(s) within the "
+                      f"prior range); contraction {c:.3f}")
+            if p.flat:
+                detail += ("; the profile is flat although the sensitivities have full rank: a "
+                           "direction so weakly identified that only the prior bounds it")
+        out.append({"check": "parameter", "subject": n, "agree": bool(agree), "detail": detail})
+    return out
+
+
+def identifiability_report(record: Experiment, out_dir, *, free=None, base=None, priors=None,
+                           posterior=None, error: str = "iid", n_points: int = 5, seed: int = 0,
+                           log=print) -> dict:  # fmt: skip
+    """Run the whole report on ``record`` and write it to ``out_dir``; returns the JSON dict.
+
+    Parameters
+    ----------
+    record : Experiment
+    out_dir : path
+    free : sequence of str, optional
+        Free Table 2 parameters (default: every one whose prior is not fixed, i.e. all but g).
+    base : mapping, optional
+        Values of the fixed parameters and the first start of the fit (default Table 1).
+    priors : mapping, optional
+        Default :func:`heli_uq.priors.default_priors`.
+    posterior : path, optional
+        ``posterior.nc`` for the Bayesian view; without it the Laplace approximation.
+    error : {"iid", "ar1"}
+    n_points : int
+        Points of the structural analysis (the fit and ``n_points - 1`` random ones).
+    """
+    from heli_uq import report_figures as figs
+
+    t_start = time.perf_counter()
+    out = pathlib.Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    priors = default_priors() if priors is None else dict(priors)
+    base = dict(TABLE1 if base is None else base)
+    if free is None:
+        free = [n for n in PARAM_NAMES if priors[n].free]
+    if n_points < 1:
+        raise ParameterError(f"--points: expected a positive integer, found {n_points}")
+    pv = ParameterVector(tuple(free), base)
+    u, y, dt = np.asarray(record.u), np.asarray(record.y), float(record.dt)
+    prior_mean, prior_sd = prior_moments(pv, priors, y[0])
+    timings = {}
+    t0 = time.perf_counter()
+    log(f"fitting {pv.dim} coordinates to {record.n} samples ({error} errors) ...")
+    starts = _least_squares_starts(record, pv, priors, seed)[:1]
+    fit = fit_likelihood(pv, u, y, dt, starts, error=error)
+    timings["fit_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    log(f"structural analysis at {n_points} points ...")
+    points = random_points(pv, fit.w, u, dt, n_points, seed=seed)
+    st = structural_analysis(pv, points, u, dt)
+    timings["structural_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    log("Fisher information and profiles ...")
+    fim = fisher_information(fit.residuals, fit.w)
+    named = [np.array([d["loadings"][n] for n in pv.names]) for d in st.null_directions]
+    null_vectors = np.column_stack(named + [st.null_basis]) if named else st.null_basis
+    profiles = profile_coordinates(pv, fit, prior_mean, prior_sd, null_vectors, fim=fim, log=log)
+    timings["practical_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    null_vectors = [np.array([d["loadings"][n] for n in pv.names]) for d in st.null_directions]
+    if posterior is not None:
+        draws = posterior_draws(posterior, pv)
+        source = f"MCMC draws from {posterior}"
+    else:
+        precision = np.diag(1.0 / prior_sd**2)
+        cov = np.linalg.inv(_fisher_matrix(fim) + precision)
+        draws = np.random.default_rng(seed).multivariate_normal(fit.w, cov, LAPLACE_DRAWS)
+        source = "Laplace approximation (F + prior precision)^-1 at the fit (no posterior given)"
+    cov_post = np.cov(draws, rowvar=False)
+    per, along = contraction(cov_post, prior_sd, null_vectors)
+    corr_post = np.corrcoef(draws, rowvar=False)
+    timings["bayesian_s"] = time.perf_counter() - t0
+
+    structural = {
+        "rank": st.rank, "n_parameters": st.n_parameters,
+        "ranks_at_points": list(st.ranks), "rank_rtol": st.rtol,
+        "gap": {"largest_zero": st.gap()[0], "smallest_nonzero": st.gap()[1]},
+        "null_directions": [{"key": d["key"], "loadings": d["loadings"],
+                             "description": d["description"], "distance": d["distance"]}
+                            for d in st.null_directions],
+        "weakest_direction": st.weakest,
+        "identifiable_combinations": st.combinations,
+    }  # fmt: skip
+    checks = cross_check(pv.names, structural, profiles, per, along)
+    result = {
+        "parameters": list(pv.names),
+        "coordinates": {n: ("log" if pv.is_log(n) else "linear") for n in pv.names},
+        "record": {"source": str(record.source), "n": int(record.n), "dt": dt,
+                   "t0": float(record.t[0]), "t1": float(record.t[-1])},
+        "error_model": {"kind": error, "sigma": np.asarray(fit.residuals.sigma).tolist(),
+                        "rho": None if fit.residuals.rho is None
+                        else np.asarray(fit.residuals.rho).tolist()},
+        "fit": {"w": fit.w.tolist(), "neg_log_lik": fit.cost + fit.residuals.log_scale_sum(),
+                "loss_v": fit.loss_v, "start_costs": list(fit.start_costs)},
+        "structural": structural,
+        "practical": {
+            "fim_eigenvalues": fim.eigenvalues.tolist(),
+            "fim_eigenvectors": fim.eigenvectors.tolist(),
+            "condition_number": fim.condition_number,
+            "fim_rank": fim.rank,
+            "cramer_rao_se": {n: _finite(v) for n, v in zip(pv.names, fim.standard_errors)},
+            "threshold": THRESHOLD_95,
+            "profiles": {p.name: {"classification": p.classification, "ci95": p.ci95,
+                                  "lower": p.lower, "upper": p.upper, "flat": p.flat,
+                                  "max_delta": _finite(np.max(p.delta)),
+                                  "bounds": list(p.bounds), "values": p.values.tolist(),
+                                  "delta": [_finite(v) for v in p.delta]}
+                         for p in profiles},
+        },
+        "bayesian": {"source": source,
+                     "contraction": {n: float(c) for n, c in zip(pv.names, per)},
+                     "contraction_along_null_directions": {
+                         d["key"]: float(c) for d, c in zip(st.null_directions, along)},
+                     "posterior_correlation": corr_post.tolist()},
+        "cross_check": checks,
+        "timings": dict(timings, total_s=time.perf_counter() - t_start),
+    }  # fmt: skip
+
+    short = "MCMC posterior" if posterior is not None else "Laplace approximation"
+    figures = figs.write_report_figures(out, pv.names, st, fim, profiles, draws, corr_post,
+                                        per, short, fit.w)  # fmt: skip
+    result["figures"] = [f.name for f in figures]
+    result["timings"]["total_s"] = time.perf_counter() - t_start
+    atomic_write_text(out / "identifiability.json", json.dumps(result, indent=1))
+    from heli_uq.report_text import markdown_report
+
+    atomic_write_text(out / "identifiability.md", markdown_report(result))
+    return result
+
+
+def _fisher_matrix(fim) -> np.ndarray:
+    v, lam = fim.eigenvectors, fim.eigenvalues
+    return (v * lam) @ v.T
+
+
+def _finite(x):
+    x = float(x)
+    return x if math.isfinite(x) else None

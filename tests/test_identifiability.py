@@ -1,0 +1,202 @@
+"""Identifiability: structural null space vs derivation, FIM vs Hessian, profile classes, contraction."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from heli_uq.cli import main
+from heli_uq.data import synthetic_experiment
+from heli_uq.fisher import WhitenedResiduals, fisher_information, fit_likelihood
+from heli_uq.identifiability import contraction, posterior_draws, profile_coordinates
+from heli_uq.params import PARAM_NAMES, TABLE1
+from heli_uq.profiles import THRESHOLD_95
+from heli_uq.sensitivity import (
+    ParameterVector,
+    analytic_null_directions,
+    random_points,
+    structural_analysis,
+)
+from heli_uq.simulate import simulate
+
+#: Invariances are exact in exact arithmetic: simulations along them agree to round-off.
+INVARIANCE_TOL = 1e-10
+#: Derived and computed null spaces: largest sine of the principal angles.
+SUBSPACE_TOL = 1e-8
+#: Gauss-Newton FIM vs exact Hessian at a zero-residual point (relative Frobenius error).
+HESSIAN_RTOL = 1e-6
+#: Exact contraction along a null direction with an isotropic prior on its coordinates.
+NULL_CONTRACTION_TOL = 1e-6
+
+FREE_ALL = tuple(n for n in PARAM_NAMES if n != "g")
+FREE_H0 = tuple(n for n in FREE_ALL if n != "h")
+
+
+@pytest.fixture(scope="module")
+def record():
+    return synthetic_experiment(duration=3.0, seed=5, noise_std=(0.005, 0.005))
+
+
+def _w(pv, params, rec):
+    return pv.from_model(params, [rec.y[0, 0], rec.y[0, 1], 0.0, 0.0])
+
+
+def _angles(params, rec, x0=None):
+    x0 = [-0.5, 0.0, 0.0, 0.0] if x0 is None else x0
+    return np.asarray(simulate(params, x0, rec.u, rec.dt))[:, :2]
+
+
+def test_common_scaling_leaves_angles_unchanged(record):
+    params = dict(TABLE1, h=0.004)
+    scaled = {n: v * (3.7 if n in ("m", "J_bc", "J_s") or n[0] in "KD" else 1.0)
+              for n, v in params.items()}  # fmt: skip
+    assert np.max(np.abs(_angles(params, record) - _angles(scaled, record))) < INVARIANCE_TOL
+
+
+def test_rc_m_jbc_trade_is_invisible_only_when_h_is_zero(record):
+    def traded(p, a):
+        q = dict(p, m=p["m"] * a, r_c=p["r_c"] / a)
+        q["J_bc"] = p["J_bc"] + p["m"] * p["r_c"] ** 2 - q["m"] * q["r_c"] ** 2
+        return q
+
+    p0 = dict(TABLE1, h=0.0)
+    assert np.max(np.abs(_angles(p0, record) - _angles(traded(p0, 1.3), record))) < INVARIANCE_TOL
+    p1 = dict(TABLE1, h=0.004)
+    assert np.max(np.abs(_angles(p1, record) - _angles(traded(p1, 1.3), record))) > 1e3 * INVARIANCE_TOL
+
+
+def test_structural_rank_with_h_free_is_one_short_by_the_common_scaling(record):
+    pv = ParameterVector(FREE_ALL, dict(TABLE1, h=0.004))
+    w = _w(pv, pv.base, record)
+    pts = random_points(pv, w, record.u, record.dt, 3, seed=1)
+    st = structural_analysis(pv, pts, record.u, record.dt)
+    assert st.rank == pv.dim - 1 and st.ranks == (pv.dim - 1,) * 3
+    (d,) = st.null_directions
+    assert d["key"] == "common_scaling"
+    v = np.array([d["loadings"][n] for n in pv.names])
+    scaled = {"m", "J_bc", "J_s", "K_theta_theta", "K_theta_psi", "K_psi_theta", "K_psi_psi",
+              "D_theta", "D_psi"}  # fmt: skip
+    expected = np.array([1.0 if n in scaled else 0.0 for n in pv.names]) / 3.0
+    assert np.max(np.abs(v - expected)) < SUBSPACE_TOL
+    basis = st.null_basis[:, 0]
+    assert abs(abs(basis @ expected) - 1.0) < SUBSPACE_TOL  # the raw SVD null vector too
+    lo, hi = st.gap()
+    assert lo < st.rtol < hi
+
+
+def test_structural_null_space_with_h_fixed_at_zero_is_two_dimensional(record):
+    pv = ParameterVector(FREE_H0, dict(TABLE1, h=0.0))
+    w = _w(pv, pv.base, record)
+    pts = random_points(pv, w, record.u, record.dt, 3, seed=2)
+    st = structural_analysis(pv, pts, record.u, record.dt)
+    assert st.rank == pv.dim - 2
+    derived = np.column_stack([v for _, v, _ in analytic_null_directions(pv, w)])
+    q, _ = np.linalg.qr(derived)
+    sines = np.linalg.svd(st.null_basis - q @ (q.T @ st.null_basis), compute_uv=False)
+    assert np.max(sines) < SUBSPACE_TOL
+    assert [d["key"] for d in st.null_directions] == ["common_scaling", "rc_m_Jbc_trade"]
+    leaks = {c["name"]: c["null_leak"] for c in st.combinations}
+    assert leaks["m g r_c / M11 [1/s^2]"] < SUBSPACE_TOL and leaks["J_s / M11"] < SUBSPACE_TOL
+    assert leaks["m (r_c^2 + h^2) / M11"] > 1e-3  # identified only through h != 0
+
+
+def test_fisher_information_equals_hessian_at_zero_residual():
+    rec = synthetic_experiment(duration=2.0, seed=7, noise_std=(0.0, 0.0))
+    pv = ParameterVector(("J_s", "K_theta_theta", "K_psi_psi", "D_theta"), dict(TABLE1),
+                         include_x0=False)  # fmt: skip
+    res = WhitenedResiduals(pv, rec.u, rec.y, rec.dt, np.array([0.01, 0.02]),
+                            np.array([0.5, 0.8]), x0=np.array([-0.5, 0.0, 0.0, 0.0]))  # fmt: skip
+    w = pv.from_model(TABLE1)
+    fim = fisher_information(res, w)
+    f = (fim.eigenvectors * fim.eigenvalues) @ fim.eigenvectors.T
+    hess = np.asarray(jax.hessian(lambda v: 0.5 * jnp.sum(res(v) ** 2))(jnp.asarray(w)))
+    assert np.linalg.norm(f - hess) / np.linalg.norm(hess) < HESSIAN_RTOL
+
+
+def test_profiles_classify_identifiable_practical_and_structural():
+    rec = synthetic_experiment(duration=2.0, seed=3, noise_std=(0.05, 0.05))
+    x0 = np.array([-0.5, 0.0, 0.0, 0.0])
+    # J_s: weak on a 2 s record with 0.05 rad noise -> bounded on one side only.
+    pv = ParameterVector(("J_s", "K_theta_theta", "D_theta"), dict(TABLE1), include_x0=False)
+    fit = fit_likelihood(pv, rec.u, rec.y, rec.dt, [pv.from_model(TABLE1)], error="iid", x0=x0)
+    prof = {p.name: p for p in profile_coordinates(pv, fit, prior_mean=pv.from_model(TABLE1),
+                                                    prior_sd=np.full(pv.dim, 2.0))}  # fmt: skip
+    assert prof["K_theta_theta"].classification == "identifiable"
+    lo, hi = prof["K_theta_theta"].ci95
+    assert lo < np.log(TABLE1["K_theta_theta"]) < hi
+    assert prof["J_s"].classification == "practically_non_identifiable"
+    assert np.max(prof["J_s"].delta) > THRESHOLD_95  # rises ...
+    assert (prof["J_s"].lower is None) != (prof["J_s"].upper is None)  # ... on one side only
+
+    # With r_c fixed, the scaled group has exactly one null direction: flat profiles.
+    free = ("m", "J_bc", "J_s", "K_theta_theta", "K_theta_psi", "K_psi_theta", "K_psi_psi",
+            "D_theta", "D_psi")  # fmt: skip
+    pv2 = ParameterVector(free, dict(TABLE1), include_x0=False)
+    fit2 = fit_likelihood(pv2, rec.u, rec.y, rec.dt, [pv2.from_model(TABLE1)], error="iid", x0=x0)
+    st = structural_analysis(pv2, [fit2.w], rec.u, rec.dt, x0=x0)
+    prof2 = profile_coordinates(pv2, fit2, prior_mean=pv2.from_model(TABLE1),
+                                prior_sd=np.full(pv2.dim, 2.0), null_basis=st.null_basis)  # fmt: skip
+    k = next(p for p in prof2 if p.name == "K_theta_theta")
+    assert k.classification == "structurally_non_identifiable" and k.ci95 is None
+
+
+def test_contraction_along_a_null_direction_is_zero_and_reads_a_posterior(tmp_path, record):
+    import arviz as az
+
+    pv = ParameterVector(FREE_ALL, dict(TABLE1, h=0.004))
+    w = _w(pv, pv.base, record)
+    res = WhitenedResiduals(pv, record.u, record.y, record.dt, np.array([0.005, 0.005]))
+    fim = fisher_information(res, w)
+    prior_sd = np.r_[np.full(len(pv.free), 2.0), np.full(4, 0.1)]
+    prior_sd[pv.names.index("h")] = 0.01
+    f = (fim.eigenvectors * fim.eigenvalues) @ fim.eigenvectors.T
+    cov = np.linalg.inv(f + np.diag(prior_sd**-2.0))
+    (v,) = [vec for key, vec, _ in analytic_null_directions(pv, w) if key == "common_scaling"]
+    per, (along,) = contraction(cov, prior_sd, [v])
+    assert abs(along) < NULL_CONTRACTION_TOL
+    assert per[pv.names.index("theta0")] > 0.9
+
+    rng = np.random.default_rng(0)
+    draws = {n: rng.normal(size=(2, 500)) * 0.1 + (0.0 if n == "h" else 1.0) for n in pv.names}
+    draws = {n: (np.exp(d) if pv.is_log(n) else d) for n, d in draws.items()}
+    az.from_dict(posterior=draws).to_netcdf(tmp_path / "posterior.nc")
+    got = posterior_draws(tmp_path / "posterior.nc", pv)
+    assert got.shape == (1000, pv.dim)
+    assert np.allclose(np.std(got, axis=0), 0.1, rtol=0.1)
+
+
+def test_cli_identifiability_writes_report(tmp_path, capsys):
+    rec = synthetic_experiment(duration=2.0, seed=3, noise_std=(0.02, 0.02))
+    csv = rec.to_csv(tmp_path / "rec.csv")
+    out = tmp_path / "ident"
+    code = main(["identifiability", "--data", str(csv), "--free", "m,J_bc,J_s,K_theta_theta,"
+                 "K_theta_psi,K_psi_theta,K_psi_psi,D_theta,D_psi", "--error", "iid",
+                 "--points", "2", "--quiet", "--out", str(out)])  # fmt: skip
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "structural rank 12 of 13" in text and "common_scaling" in text
+    r = json.loads((out / "identifiability.json").read_text())
+    assert r["structural"]["rank"] == 12 and r["structural"]["n_parameters"] == 13
+    assert set(r["practical"]["profiles"]) == set(r["parameters"])
+    assert r["practical"]["profiles"]["D_psi"]["classification"] == "structurally_non_identifiable"
+    assert r["practical"]["profiles"]["theta0"]["classification"] == "identifiable"
+    assert abs(r["bayesian"]["contraction_along_null_directions"]["common_scaling"]) < 0.1
+    md = (out / "identifiability.md").read_text()
+    assert "common_scaling" in md and "Cross-check" in md
+    for fig in r["figures"]:
+        assert (out / fig).stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--free", "m,bogus"], "bogus"),
+    (["--posterior", "nope/posterior.nc"], "no such file"),
+    (["--points", "0"], "--points"),
+])  # fmt: skip
+def test_cli_identifiability_bad_input_is_one_line(tmp_path, capsys, argv, message):
+    rec = synthetic_experiment(duration=1.0, seed=3)
+    csv = rec.to_csv(tmp_path / "rec.csv")
+    code = main(["identifiability", "--data", str(csv), *argv, "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and message in err and len(err.splitlines()) == 1

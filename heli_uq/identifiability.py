@@ -146,7 +146,7 @@ def _least_squares_starts(record, pv: ParameterVector, priors, seed: int) -> lis
     return [w for _, w in out]
 
 
-def _profile_bounds(pv, j, prior_mean, prior_sd, w_hat):
+def _profile_bounds(j, prior_mean, prior_sd, w_hat):
     lo = prior_mean[j] - PRIOR_RANGE_SD * prior_sd[j]
     hi = prior_mean[j] + PRIOR_RANGE_SD * prior_sd[j]
     pad = 0.1 * prior_sd[j]
@@ -168,7 +168,7 @@ def profile_coordinates(pv: ParameterVector, fit, prior_mean, prior_sd, null_bas
     null_basis = np.zeros((pv.dim, 0)) if null_basis is None else np.asarray(null_basis)
     profiles = []
     for j, name in enumerate(pv.names):
-        bounds = _profile_bounds(pv, j, prior_mean, prior_sd, fit.w)
+        bounds = _profile_bounds(j, prior_mean, prior_sd, fit.w)
         se = fim.standard_errors[j]
         step0 = min(se if np.isfinite(se) else np.inf, (bounds[1] - bounds[0]) / 8)
         values, costs = profile_likelihood(fit.residuals, fit.w, fit.cost, j, bounds, step0, jac,

@@ -397,7 +397,7 @@ def _cmd_sample(args) -> int:
         record, out, train=train, test=test, sampler=args.sampler, error=args.error,
         priors=priors, chains=args.chains, warmup=args.warmup, draws=args.draws,
         seed=args.seed, resume=args.resume, progress=not args.no_progress,
-        walkers=args.walkers,
+        walkers=args.walkers, adapt_mass_matrix=args.adapt_mass_matrix == "on",
     )  # fmt: skip
     keys = ("rhat_max", "ess_bulk_min", "ess_tail_min", "divergences", "rmse", "coverage90",
             "rmse_test", "coverage90_test", "wall_s")  # fmt: skip
@@ -446,6 +446,10 @@ def _add_sample(subparsers) -> None:
                    help="warm-up iterations per chain (emcee: burn-in steps) (default: 1000)")
     p.add_argument("--draws", type=int, default=1000,
                    help="kept draws per chain (emcee: steps per walker) (default: 1000)")
+    p.add_argument("--adapt-mass-matrix", choices=["on", "off"], default="on",
+                   help="NUTS: keep adapting the Laplace mass matrix in warm-up (default: on);"
+                        " 'off' keeps the Laplace matrix, which avoids the step-size collapse"
+                        " of numpyro's shrunk dense estimate on sharp posteriors")
     p.add_argument("--walkers", type=int, default=None,
                    help="emcee walkers per ensemble (default: 2 * dim + 2)")
     p.add_argument("--error", choices=["iid", "ar1"], default="ar1",

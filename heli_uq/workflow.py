@@ -32,7 +32,7 @@ SAMPLERS = ("nuts", "emcee")
 def sample_posterior(record: Experiment, out_dir, *, train=None, test=None, sampler="nuts",
                      error="ar1", priors=None, chains=4, warmup=1000, draws=1000, seed=0,
                      resume=False, progress=True, walkers=None, ensembles=None,
-                     n_starts=4):  # fmt: skip
+                     n_starts=4, adapt_mass_matrix=True):  # fmt: skip
     """Run the whole posterior study and write its files; returns ``(idata, summary)``.
 
     Parameters
@@ -44,6 +44,9 @@ def sample_posterior(record: Experiment, out_dir, *, train=None, test=None, samp
     sampler : {"nuts", "emcee"}
         ``emcee`` runs ``ensembles`` (default ``chains``) independent ensembles of
         ``walkers`` walkers for ``warmup + draws`` steps each and keeps the last ``draws``.
+    adapt_mass_matrix : bool
+        NUTS only: keep adapting the Laplace mass matrix in warm-up (see
+        :func:`heli_uq.inference.run_nuts` for when ``False`` is faster).
     """
     if sampler not in SAMPLERS:
         raise ParameterError(f"--sampler: expected one of {SAMPLERS}, found {sampler!r}")
@@ -56,7 +59,8 @@ def sample_posterior(record: Experiment, out_dir, *, train=None, test=None, samp
         start = prepare_start(problem, n_starts=n_starts, seed=seed)
     if sampler == "nuts":
         run = run_nuts(problem, out, chains=chains, warmup=warmup, draws=draws, seed=seed,
-                       resume=resume, progress=progress, start=start)  # fmt: skip
+                       resume=resume, progress=progress, start=start,
+                       adapt_mass_matrix=adapt_mass_matrix)  # fmt: skip
     else:
         from heli_uq.ensemble import run_emcee
 

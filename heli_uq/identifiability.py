@@ -119,8 +119,7 @@ def _least_squares_starts(record, pv: ParameterVector, priors, seed: int) -> lis
     from Table 1 alone, 0.11 from the best start), so one start is not enough.
     """
     from heli_uq.model import make_problem
-    from heli_uq.optimize import least_squares_fit
-    from heli_uq.params import TABLE2
+    from heli_uq.optimize import least_squares_fit, start_parameters
     from heli_uq.priors import Prior
     from heli_uq.simulate import simulate
 
@@ -128,11 +127,7 @@ def _least_squares_starts(record, pv: ParameterVector, priors, seed: int) -> lis
     problem = make_problem(record, priors=dict(priors, **fixed), error="iid")
     coords = problem.coords
     fit = least_squares_fit(problem)
-    rng = np.random.default_rng(seed)
-    guesses = [dict(pv.base), {n: (TABLE2[n] if n in pv.free else pv.base[n]) for n in PARAM_NAMES}]
-    for _ in range(N_STARTS - 2):
-        guesses.append({n: v * (np.exp(rng.normal(0, 0.3)) if n in pv.free and pv.is_log(n) else 1.0)
-                        for n, v in pv.base.items()})  # fmt: skip
+    guesses = start_parameters(pv.free, pv.base, N_STARTS, seed)
     x_guess = np.array([record.y[0, 0], record.y[0, 1], 0.0, 0.0])
     out = []
     for params in guesses:

@@ -28,7 +28,7 @@ from heli_uq.simulate import simulate
 
 __all__ = [
     "LogDensity", "log_density_setup", "MapResult", "find_map", "laplace", "least_squares_fit",
-    "newton_polish",
+    "newton_polish", "start_parameters",
 ]  # fmt: skip
 
 #: Residual scales [rad] (theta, psi) of the least-squares stage that precedes the MAP.
@@ -285,6 +285,21 @@ def newton_polish(density: LogDensity, x: np.ndarray, steps: int = NEWTON_STEPS)
     return x, value, float(np.max(np.abs(g))), decrement, taken
 
 
+def start_parameters(free, base, n: int, seed: int = 0) -> list[dict]:
+    """Parameter guesses of a multi-start fit (shared by the MAP and the identifiability fit).
+
+    ``base``, then ``base`` with Table 2 values for the ``free`` names, then ``n - 2``
+    log-normal (sd 0.3) perturbations of ``base``'s free parameters other than ``h``; the
+    other names keep their ``base`` values.  Returns ``n`` dicts.
+    """
+    rng = np.random.default_rng(seed)
+    out = [dict(base), {p: (TABLE2[p] if p in free else v) for p, v in base.items()}]
+    while len(out) < n:
+        out.append({p: v * (float(np.exp(rng.normal(0, 0.3))) if p in free and p != "h" else 1.0)
+                    for p, v in base.items()})  # fmt: skip
+    return out[:n]
+
+
 def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0) -> list:
     """Starting points for :func:`find_map`, each refined by :func:`least_squares_fit`.
 
@@ -293,23 +308,14 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0) -> 
     residual scale ``sigma`` is set to the residual RMS and ``tau`` to the correlation time
     of the residuals' lag-1 autocorrelation, so the MAP search starts close to its optimum.
     """
-    rng = np.random.default_rng(seed)
     coords = problem.coords
     n_train = problem.n_train
     out = []
     fit = least_squares_fit(problem)
     u_train = jnp.asarray(problem.u[:n_train])
     sim = jax.jit(lambda z, x0: simulate(coords.to_physical(z), x0, u_train, problem.dt))
-    for k in range(n):
-        if k == 0:
-            params = TABLE1
-        elif k == 1:
-            params = TABLE2
-        else:
-            params = {p: v * (np.exp(rng.normal(0, 0.3)) if p not in ("g", "h") else 1.0)
-                      for p, v in TABLE1.items()}  # fmt: skip
-        params = {p: (coords.priors[p].a if not coords.priors[p].free else v)
-                  for p, v in params.items()}  # fmt: skip
+    base = {p: (coords.priors[p].a if not coords.priors[p].free else v) for p, v in TABLE1.items()}
+    for params in start_parameters(coords.free, base, n, seed):
         values = default_init_values(problem, params)
         x0 = np.array([values[s] for s in ("theta0", "psi0", "omega_theta0", "omega_psi0")])
         z_full = coords.from_physical(params)

@@ -302,7 +302,7 @@ def identifiability_report(record: Experiment, out_dir, *, free=None, base=None,
     structural = {
         "rank": st.rank, "n_parameters": st.n_parameters,
         "ranks_at_points": list(st.ranks), "rank_rtol": st.rtol,
-        "gap": {"largest_zero": st.gap()[0], "smallest_nonzero": st.gap()[1]},
+        "gap": dict(zip(("largest_zero", "smallest_nonzero"), st.gap())),
         "null_directions": [{"key": d["key"], "loadings": d["loadings"],
                              "description": d["description"], "distance": d["distance"]}
                             for d in st.null_directions],

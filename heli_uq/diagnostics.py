@@ -52,6 +52,9 @@ def convergence(idata) -> dict:
         "worst_rhat_variable": _worst(summ["r_hat"], max),
         "worst_ess_variable": _worst(summ["ess_bulk"], min),
     }
+    for key in ("map_seconds", "warmup_seconds", "map_decrement", "target_accept"):
+        if key in info:
+            out[key] = info[key]
     stats = idata.sample_stats
     if "diverging" in stats:
         out["divergences"] = int(stats["diverging"].sum())

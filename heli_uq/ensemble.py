@@ -39,7 +39,7 @@ from heli_uq.errors import ParameterError
 from heli_uq.inference import SamplerRun, Start, prepare_start
 from heli_uq.io import atomic_write_bytes
 from heli_uq.model import Problem
-from heli_uq.optimize import LogDensity, log_density_setup
+from heli_uq.optimize import LogDensity, batched_constrain, constrain_draws, log_density_setup
 
 __all__ = ["run_emcee", "INIT_SCALE", "TAU_FACTOR"]
 
@@ -51,8 +51,6 @@ MAX_INIT_ROUNDS = 100
 TAU_FACTOR = 50
 #: Mean acceptance fraction below which walkers are reported as (nearly) stuck.
 MIN_ACCEPTANCE = 0.1
-#: Draws per batch when mapping unconstrained draws to constrained sites.
-CONSTRAIN_BATCH = 1024
 CHUNK_DIR = "chunks_emcee"
 START_FILE = "start.pkl"
 #: Settings that must match between an interrupted run and its resumption.
@@ -67,17 +65,12 @@ def _batched_log_post(potential):
     return jax.jit(jax.vmap(lambda x: -potential(x)))
 
 
-@functools.lru_cache(maxsize=JIT_CACHE_SIZE)
-def _batched_constrain(constrain, unravel):
-    return jax.jit(jax.vmap(lambda x: constrain(unravel(x))))
-
-
 def _batched(density: LogDensity):
     """Jitted, vmapped ``(log posterior, constrain)`` of ``density``: ``x (n, d) ->``
     ``log p (n,)`` and ``x (n, d) ->`` dict of constrained sites (leading axis n).
     Cached, so repeated runs on one density compile once."""
     return (_batched_log_post(density.potential),
-            _batched_constrain(density.constrain, density.unravel))  # fmt: skip
+            batched_constrain(density))  # fmt: skip
 
 
 def _log_prob_fn(density: LogDensity):
@@ -233,21 +226,6 @@ def _run_ensemble(density, start_info, ensemble, *, walkers, steps, chunk, seed,
     return chain, lp, accepted
 
 
-def _constrained(density: LogDensity, x: np.ndarray) -> dict:
-    """Constrained sites (incl. deterministics) of the draws ``x (n, d)``, in batches."""
-    _, constrain = _batched(density)
-    n = x.shape[0]
-    parts = []
-    for i in range(0, n, CONSTRAIN_BATCH):
-        block = x[i : i + CONSTRAIN_BATCH]
-        pad = CONSTRAIN_BATCH - block.shape[0]
-        if pad:  # one compiled batch shape: pad with the last draw, drop afterwards
-            block = np.concatenate([block, np.repeat(block[-1:], pad, axis=0)])
-        out = constrain(jnp.asarray(block))
-        parts.append({k: np.asarray(v)[: CONSTRAIN_BATCH - pad] for k, v in out.items()})
-    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-
-
 def _autocorrelation(chain: np.ndarray, kept_draws: int, ensemble: int):
     """tau per coordinate, ESS and warnings of one ensemble's post-burn chain.
 
@@ -374,7 +352,7 @@ def run_emcee(problem: Problem, out_dir, *, ensembles: int = 2, walkers: int | N
         taus.append(tau.tolist())
         ess.append(n_eff)
         warnings += warn
-        for k, v in _constrained(density, kept.reshape(-1, chain.shape[-1])).items():
+        for k, v in constrain_draws(density, kept.reshape(-1, chain.shape[-1])).items():
             per_site.setdefault(k, []).append(v)
         lps.append(lp[burn::thin].reshape(-1))
     samples = {k: np.stack(v) for k, v in per_site.items()}

@@ -1,9 +1,9 @@
 """Posterior sampling: numpyro NUTS and emcee on the one model, saved in chunks, resumable.
 
 Both samplers start from a multi-start MAP (:mod:`heli_uq.optimize`) so chains do not
-start in the regime where the model flies off; NUTS also uses the Laplace covariance
-there as its dense inverse mass matrix, and by default keeps adapting it in warm-up
-(see ``adapt_mass_matrix`` of :func:`run_nuts`).
+start in the regime where the model flies off.  NUTS moves in coordinates whitened by
+the Laplace covariance at the MAP and adapts a dense mass matrix there (see
+:func:`run_nuts` for why this and not the Laplace matrix as initial mass matrix).
 
 Chunks: after warm-up the draws are produced ``chunk`` at a time; each chunk is written
 atomically to ``DIR/chunks/`` with the sampler state, so Ctrl-C or a crash loses at most
@@ -21,16 +21,24 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from numpyro.infer import MCMC, NUTS, init_to_value
+from numpyro.infer import MCMC, NUTS
 
 from heli_uq.errors import ParameterError
 from heli_uq.io import atomic_write_bytes
-from heli_uq.model import Problem, heli_model
-from heli_uq.optimize import LogDensity, find_map, laplace, log_density_setup, map_starts
+from heli_uq.model import Problem
+from heli_uq.optimize import (
+    LogDensity, constrain_draws, find_map, laplace, log_density_setup, map_starts,
+)
 
 __all__ = ["SamplerRun", "prepare_start", "run_nuts"]
 
 NUTS_EXTRA_FIELDS = ("diverging", "num_steps", "energy", "accept_prob", "potential_energy")
+#: Default target acceptance of the step-size adaptation.
+TARGET_ACCEPT = 0.9
+#: Chains start at ``w ~ N(0, INIT_SPREAD^2 I)`` in whitened coordinates (1: a Laplace draw);
+#: a start where the model fails is redrawn up to MAX_INIT_ROUNDS times, then set to the MAP.
+INIT_SPREAD = 1.0
+MAX_INIT_ROUNDS = 10
 
 
 @dataclasses.dataclass
@@ -110,11 +118,45 @@ def _load_chunks(chunks: pathlib.Path):
     return cat, {k: np.concatenate(v, axis=1) for k, v in stats.items()}, len(files)
 
 
+def _whitening(start_info: dict) -> tuple[np.ndarray, np.ndarray]:
+    """``(x_map, L)`` with ``L L^T`` the Laplace covariance: ``x = x_map + L w``."""
+    cov = np.asarray(start_info["inverse_mass_matrix"], dtype=float)
+    return np.asarray(start_info["x_map"], dtype=float), np.linalg.cholesky(0.5 * (cov + cov.T))
+
+
+def _initial_positions(potential, chains: int, dim: int, seed: int) -> np.ndarray:
+    """One start per chain in whitened coordinates: a draw of the Laplace approximation
+    (``w ~ N(0, INIT_SPREAD^2 I)``), redrawn where the model fails, else the MAP (w = 0)."""
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1,)))
+    w = INIT_SPREAD * rng.standard_normal((chains, dim))
+    batched = jax.jit(jax.vmap(potential))
+    for _ in range(MAX_INIT_ROUNDS):
+        bad = ~np.isfinite(np.asarray(batched(jnp.asarray(w))))
+        if not bad.any():
+            return w
+        w[bad] = INIT_SPREAD * rng.standard_normal((int(bad.sum()), dim))
+    w[bad] = 0.0
+    return w
+
+
 def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
              draws: int = 1000, seed: int = 0, chunk: int = 250, resume: bool = False,
-             progress: bool = True, max_tree_depth: int = 8, target_accept: float = 0.85,
-             adapt_mass_matrix: bool = True, start: Start | None = None) -> SamplerRun:  # fmt: skip
-    """NUTS with the Laplace covariance at the MAP as dense inverse mass matrix.
+             progress: bool = True, max_tree_depth: int = 8,
+             target_accept: float = TARGET_ACCEPT, adapt_mass_matrix: bool = True,
+             start: Start | None = None) -> SamplerRun:  # fmt: skip
+    """NUTS in coordinates whitened by the Laplace approximation at the MAP.
+
+    NUTS moves in ``w`` with ``x = x_map + L w`` (``x``: numpyro's unconstrained vector,
+    ``L L^T``: the Laplace covariance), where the posterior is close to ``N(0, I)``; the
+    Jacobian of this map is constant, so the target is unchanged.  Warm-up adapts the
+    step size and a dense mass matrix *in w*, starting from the identity.
+
+    Why whiten instead of passing the Laplace covariance as the initial mass matrix:
+    numpyro regularises every dense estimate towards ``1e-3 * I`` in absolute units of
+    the sampled coordinates.  In ``x`` that adds ~1e-4 of variance to the stiffest
+    posterior direction (variance ~1e-9, the pitch gain vs. gravity-ratio balance), so the
+    step size collapsed ~100-fold and every draw hit the tree-depth limit; in ``w`` every
+    direction has variance ~1 and the same regularisation is harmless.
 
     Parameters
     ----------
@@ -122,22 +164,18 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     out_dir : path
         ``out_dir/chunks`` receives the draws as they are made.
     chains, warmup, draws : int
-        Independent chains; warm-up and kept iterations per chain.
+        Independent chains; warm-up and kept iterations per chain.  Chains start from
+        independent draws of the Laplace approximation.  They run in parallel when JAX
+        has at least ``chains`` devices (the CLI sets ``numpyro.set_host_device_count``).
     chunk : int
         Draws per saved chunk.
     resume : bool
         Continue from ``out_dir/chunks`` (same settings) instead of starting again.
+    target_accept : float
+        Target mean acceptance probability of step-size adaptation.
     adapt_mass_matrix : bool
-        Keep adapting the (Laplace-initialised) dense mass matrix during warm-up.  numpyro
-        shrinks its dense estimate towards ``1e-3 * I`` in *absolute* units, which adds
-        ~1e-4 of variance to the stiffest posterior direction (variance ~1e-9: the pitch
-        gain vs. gravity-ratio balance), so the adapted step size collapses ~100-fold and
-        NUTS runs at the tree-depth limit (255 leapfrog steps per draw).  ``False`` keeps
-        the Laplace matrix: on 5 s synthetic SBC records (noise 0.01-0.15 rad) step ~0.17, ~26
-        steps, 0-1 divergences per 300 draws; on the 4 s, 3 mrad test record the curved
-        ridge then gives step ~0.05, ~100-150 steps and divergences, where the collapsed
-        step of ``True`` has none.  ``True`` stays the default as the conservative choice;
-        the step size is adapted either way.
+        Adapt the dense mass matrix in whitened coordinates during warm-up (``False``:
+        keep the identity, i.e. the Laplace covariance).
     """
     for name, value in (("chains", chains), ("warmup", warmup), ("draws", draws),
                         ("chunk", chunk)):  # fmt: skip
@@ -165,31 +203,40 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
                 "x_map": start.x_map, "inverse_mass_matrix": start.covariance}  # fmt: skip
         atomic_write_bytes(chunks / "start.pkl", pickle.dumps(info))
     density = start.density if start is not None else log_density_setup(problem, seed=seed)
-    init_values = density.constrain(density.unravel(jnp.asarray(info["x_map"])))
-    init_values = {k: v for k, v in init_values.items() if k in density.unravel(density.x_init)}
-    kernel = NUTS(heli_model, dense_mass=True, inverse_mass_matrix=jnp.asarray(
-        info["inverse_mass_matrix"]), init_strategy=init_to_value(values=init_values),
-        max_tree_depth=max_tree_depth, target_accept_prob=target_accept,
-        adapt_mass_matrix=adapt_mass_matrix)  # fmt: skip
+    x_map, lower = _whitening(info)
+    x_map_j, lower_j = jnp.asarray(x_map), jnp.asarray(lower)
+
+    def potential(w):
+        return density.potential(x_map_j + lower_j @ w)
+
+    kernel = NUTS(potential_fn=potential, dense_mass=True, max_tree_depth=max_tree_depth,
+                  target_accept_prob=target_accept, adapt_mass_matrix=adapt_mass_matrix)
     n_dev = jax.local_device_count()
-    method = "parallel" if n_dev >= min(chains, 2) and chains > 1 else "sequential"
+    method = "parallel" if n_dev >= chains and chains > 1 else "sequential"
     n_chunks = -(-draws // chunk)
+    chunk = -(-draws // n_chunks)  # equal chunks: no draws made only to be cut off
     mcmc = MCMC(kernel, num_warmup=warmup, num_samples=chunk, num_chains=chains,
                 chain_method=method, progress_bar=progress)  # fmt: skip
     key = jax.random.PRNGKey(seed)
     warm_seconds = 0.0
     if state is None:
         t0 = time.perf_counter()
-        mcmc.warmup(key, problem, **density.model_kwargs, collect_warmup=False,
-                    extra_fields=NUTS_EXTRA_FIELDS)  # fmt: skip
+        w0 = _initial_positions(potential, chains, x_map.size, seed)
+        mcmc.warmup(key, init_params=jnp.asarray(w0 if chains > 1 else w0[0]),
+                    collect_warmup=False, extra_fields=NUTS_EXTRA_FIELDS)  # fmt: skip
+        state = jax.block_until_ready(mcmc.post_warmup_state)
         warm_seconds = time.perf_counter() - t0
-        state = mcmc.post_warmup_state
     for index in range(done, n_chunks):
         mcmc.post_warmup_state = state
-        mcmc.run(state.rng_key, problem, **density.model_kwargs, extra_fields=NUTS_EXTRA_FIELDS)
+        # init_params: a resumed run has a fresh kernel, which numpyro initialises from
+        # them (the loaded state, incl. its adaptation, is what is then continued).
+        mcmc.run(state.rng_key, init_params=state.z, extra_fields=NUTS_EXTRA_FIELDS)
         state = mcmc.last_state
-        new = {k: np.asarray(v) for k, v in mcmc.get_samples(group_by_chain=True).items()}
-        extra = {k: np.asarray(v) for k, v in mcmc.get_extra_fields(group_by_chain=True).items()}
+        w = np.asarray(mcmc.get_samples(group_by_chain=True)).reshape(chains, chunk, -1)
+        flat = constrain_draws(density, (x_map + w @ lower.T).reshape(-1, x_map.size))
+        new = {k: v.reshape((chains, chunk) + v.shape[1:]) for k, v in flat.items()}
+        extra = {k: np.asarray(v).reshape(chains, chunk)
+                 for k, v in mcmc.get_extra_fields(group_by_chain=True).items()}
         _save_chunk(chunks, index, new, extra, state)
         for k, v in new.items():
             samples[k] = np.concatenate([samples[k], v], axis=1) if k in samples else v
@@ -199,7 +246,7 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     stats = {k: v[:, :draws] for k, v in stats.items()}
     adapt = state.adapt_state
     info = dict(info, sampler="nuts", chains=chains, warmup=warmup, draws=draws, seed=seed,
-                chain_method=method, warmup_seconds=warm_seconds,
-                step_size=np.asarray(adapt.step_size).tolist(),
+                chain_method=method, warmup_seconds=warm_seconds, coordinates="laplace_whitened",
+                step_size=np.asarray(adapt.step_size).tolist(), target_accept=target_accept,
                 max_tree_depth=max_tree_depth, wall_seconds=time.perf_counter() - t_start)
     return SamplerRun(samples=samples, stats=stats, info=info)

@@ -95,10 +95,10 @@ def make_problem(record: Experiment, train=None, test=None, *, priors=None,
     if error not in ERROR_MODELS:
         raise ParameterError(f"--error: expected one of {ERROR_MODELS}, found {error!r}")
     priors = default_priors() if priors is None else dict(priors)
-    coords = Coordinates(priors, strategy)
     t0 = float(record.t[0])
     a, b = train if train is not None else (t0, t0 + record.duration)
     tr = record.window(a, b)
+    coords = Coordinates(priors, strategy, yaw_theta_ref=float(np.median(tr.y[:, 0])))
     if test is None:
         span, test_idx = tr, None
     else:

@@ -15,19 +15,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-import optimistix as optx
 from jax.flatten_util import ravel_pytree
 from numpyro.infer import init_to_value
 from numpyro.infer.util import initialize_model
 
 from heli_uq.errors import ParameterError
+from heli_uq.levenberg import masked_least_squares
 from heli_uq.model import Problem, heli_model
 from heli_uq.params import TABLE1, TABLE2
 from heli_uq.priors import X0_ANGLE_SD, X0_RATE_SD
 from heli_uq.simulate import simulate
 
 __all__ = [
-    "LogDensity", "log_density_setup", "MapResult", "find_map", "laplace", "least_squares_fit",
+    "LogDensity", "batched_constrain", "constrain_draws", "log_density_setup", "MapResult", "find_map", "laplace", "least_squares_fit",
     "newton_polish", "start_parameters",
 ]  # fmt: skip
 
@@ -79,6 +79,36 @@ class LogDensity:
     @functools.cached_property
     def grad_jit(self):
         return jax.jit(jax.grad(self.potential))
+
+
+#: Draws per batch when mapping unconstrained draws to constrained sites.
+CONSTRAIN_BATCH = 1024
+
+
+@functools.lru_cache(maxsize=8)
+def _vmapped_constrain(constrain, unravel):
+    return jax.jit(jax.vmap(lambda x: constrain(unravel(x))))
+
+
+def batched_constrain(density: LogDensity):
+    """Jitted, vmapped ``x (n, d) ->`` dict of constrained sites (incl. deterministics),
+    leading axis ``n``; cached per density, so repeated runs compile once."""
+    return _vmapped_constrain(density.constrain, density.unravel)
+
+
+def constrain_draws(density: LogDensity, x: np.ndarray) -> dict:
+    """Constrained sites of the unconstrained draws ``x (n, d)``, in fixed-size batches."""
+    constrain = batched_constrain(density)
+    n = x.shape[0]
+    parts = []
+    for i in range(0, n, CONSTRAIN_BATCH):
+        block = x[i : i + CONSTRAIN_BATCH]
+        pad = CONSTRAIN_BATCH - block.shape[0]
+        if pad:  # one compiled batch shape: pad with the last draw, drop afterwards
+            block = np.concatenate([block, np.repeat(block[-1:], pad, axis=0)])
+        out = constrain(jnp.asarray(block))
+        parts.append({k: np.asarray(v)[: CONSTRAIN_BATCH - pad] for k, v in out.items()})
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
 def default_init_values(problem: Problem, params=None) -> dict:
@@ -177,7 +207,7 @@ def least_squares_fit(problem: Problem, *, max_steps: int = 100):
     x0_mu = jnp.concatenate([jnp.asarray(problem.y[0]), jnp.zeros(2)])
     x0_sd = jnp.asarray([X0_ANGLE_SD, X0_ANGLE_SD, X0_RATE_SD, X0_RATE_SD])
 
-    def residuals(v, _):
+    def residuals(v):
         z, x_init = v[:d], v[d:]
         phys = coords.to_physical(z)
         ys = simulate(phys, x_init, u, problem.dt, gradients="autodiff")
@@ -186,13 +216,13 @@ def least_squares_fit(problem: Problem, *, max_steps: int = 100):
         w = jnp.stack([coords.priors[k].to_coordinate(phys[k]) for k in coords.free])
         return jnp.concatenate([r, (w - mu) / sd, (x_init - x0_mu) / x0_sd])
 
-    solver = optx.LevenbergMarquardt(rtol=1e-8, atol=1e-10)
+    free = jnp.zeros(d + 4, dtype=bool)
 
     @jax.jit
     def fit(z0, x0):
         v0 = jnp.concatenate([jnp.asarray(z0), jnp.asarray(x0)])
-        v = optx.least_squares(residuals, solver, v0, max_steps=max_steps, throw=False).value
-        return v[:d], v[d:], 0.5 * jnp.sum(residuals(v, None) ** 2)
+        v, cost = masked_least_squares(residuals, v0, free, v0, max_steps)
+        return v[:d], v[d:], cost
 
     return fit
 

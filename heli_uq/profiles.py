@@ -29,7 +29,8 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
-from heli_uq.fisher import WhitenedResiduals, masked_least_squares
+from heli_uq.fisher import WhitenedResiduals
+from heli_uq.levenberg import masked_least_squares
 
 __all__ = ["THRESHOLD_95", "FLAT_DELTA", "CLASSES", "Profile", "profile_likelihood", "classify"]
 

@@ -14,10 +14,21 @@ log_gravity_ratio       log(m g r_c / M11) [1/s^2]       yes
 logit_body_fraction     logit(m (r_c^2 + h^2) / M11)     only through h: weak when h ~ 0,
                                                          none when h is fixed at 0
 h_over_r_c              h / r_c                          yes (if h is free)
-log_J_s_ratio           log(J_s / M11)                   yes
-log_<K>_ratio (4)       log(K / M11)                     yes
-log_<D>_ratio (2)       log(D / M11)                     yes
+log_J_s_ratio           log(J_s / M11)                   yes, often weakly (see below)
+log_<K>_ratio (2)       log(K / M11), pitch gains        yes
+log_D_theta_ratio       log(D_theta / M11)               yes
+log_<K>_yaw_ratio (2)   log(K / M22(theta_ref)),         yes
+                        yaw gains K_psi_theta, K_psi_psi
+log_D_psi_yaw_ratio     log(D_psi / M22(theta_ref))      yes
 ======================  ===============================  ==================================
+
+The yaw torques act through the yaw inertia ``M22(theta) = J_bc c^2 + m (r_c c - h s)^2
++ J_s``, which the record identifies mainly at the pitch angles it visits.  Relative to
+``M11`` the yaw gains trade against ``J_s / M11`` along a *curved* ridge (``K_psi / M11 ~
+J_s / M11 + cos^2 theta``), and NUTS diverges where that ridge bends; relative to
+``M22`` at a reference pitch ``theta_ref`` (``yaw_theta_ref``, by default the median
+measured pitch of the training window, :func:`heli_uq.model.make_problem`) the ridge is
+nearly straight and ``log_J_s_ratio`` is left with what only the pitch variation tells.
 
 The two unidentified directions become straight coordinate axes, along which the
 posterior is the (conditional) prior.  The common scale is handled *exactly*: ``m``,
@@ -49,6 +60,8 @@ from heli_uq.priors import Prior
 __all__ = ["Coordinates"]
 
 _SCALED = ("J_s", "K_theta_theta", "K_theta_psi", "K_psi_theta", "K_psi_psi", "D_theta", "D_psi")
+#: Scaled parameters of the yaw equation, sampled relative to ``M22(theta_ref)``.
+_YAW = ("K_psi_theta", "K_psi_psi", "D_psi")
 _BODY = ("r_c", "m", "J_bc")
 
 
@@ -62,10 +75,14 @@ class Coordinates:
         One prior per Table 2 name; ``fixed`` priors are not sampled.
     strategy : {"auto", "identifiable", "log"}
         ``auto`` uses ``identifiable`` when the free set allows it.
+    yaw_theta_ref : float
+        Pitch angle [rad] at which the yaw inertia ``M22`` of the yaw-gain coordinates
+        is taken (identifiable strategy only; any value gives a valid map).
     """
 
     priors: Mapping[str, Prior]
     strategy: str = "auto"
+    yaw_theta_ref: float = 0.0
 
     def __post_init__(self):
         free = tuple(n for n in PARAM_NAMES if self.priors[n].free)
@@ -89,7 +106,7 @@ class Coordinates:
             names = ["log_J_pitch", "log_gravity_ratio", "logit_body_fraction"]
             if self.priors["h"].free:
                 names.append("h_over_r_c")
-            names += [f"log_{n}_ratio" for n in _SCALED]
+            names += [f"log_{n}_yaw_ratio" if n in _YAW else f"log_{n}_ratio" for n in _SCALED]
             unidentified = ("log_J_pitch",) + (() if self.priors["h"].free
                                                else ("logit_body_fraction",))  # fmt: skip
         else:
@@ -158,8 +175,18 @@ class Coordinates:
         out = dict(fixed)
         out.update(r_c=r_c, m=mrc / r_c, h=rho * r_c, J_bc=m11 * (1.0 - frac))
         for k, n in enumerate(_SCALED):
-            out[n] = m11 * jnp.exp(z[i + k])
+            if n not in _YAW:
+                out[n] = m11 * jnp.exp(z[i + k])
+        m22 = self._yaw_inertia(out)
+        for k, n in enumerate(_SCALED):
+            if n in _YAW:
+                out[n] = m22 * jnp.exp(z[i + k])
         return out
+
+    def _yaw_inertia(self, p):
+        """``M22(yaw_theta_ref)`` [kg m^2] of a parameter mapping (numpy or jax)."""
+        c, s = math.cos(self.yaw_theta_ref), math.sin(self.yaw_theta_ref)
+        return p["J_bc"] * c * c + p["m"] * (p["r_c"] * c - p["h"] * s) ** 2 + p["J_s"]
 
     def from_physical(self, values: Mapping[str, float]) -> np.ndarray:
         """Coordinates of a full parameter mapping (inverse of :meth:`to_physical`)."""
@@ -173,7 +200,8 @@ class Coordinates:
         z = [math.log(m11), math.log(v["m"] * g * v["r_c"] / m11), math.log(frac / (1 - frac))]
         if self.priors["h"].free:
             z.append(v["h"] / v["r_c"])
-        z += [math.log(v[n] / m11) for n in _SCALED]
+        m22 = self._yaw_inertia(v)
+        z += [math.log(v[n] / (m22 if n in _YAW else m11)) for n in _SCALED]
         return np.array(z)
 
     def _prior_coordinates(self, z):

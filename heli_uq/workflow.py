@@ -18,7 +18,7 @@ import numpy as np
 from heli_uq.data import Experiment
 from heli_uq.diagnostics import summarize
 from heli_uq.errors import ParameterError
-from heli_uq.inference import prepare_start, run_nuts
+from heli_uq.inference import TARGET_ACCEPT, prepare_start, run_nuts
 from heli_uq.io import atomic_write_text
 from heli_uq.model import make_problem
 from heli_uq.plots import plot_bands, save_figure
@@ -32,7 +32,7 @@ SAMPLERS = ("nuts", "emcee")
 def sample_posterior(record: Experiment, out_dir, *, train=None, test=None, sampler="nuts",
                      error="ar1", priors=None, chains=4, warmup=1000, draws=1000, seed=0,
                      resume=False, progress=True, walkers=None, ensembles=None,
-                     n_starts=4, adapt_mass_matrix=True):  # fmt: skip
+                     n_starts=4, adapt_mass_matrix=True, target_accept=TARGET_ACCEPT):  # fmt: skip
     """Run the whole posterior study and write its files; returns ``(idata, summary)``.
 
     Parameters
@@ -44,9 +44,8 @@ def sample_posterior(record: Experiment, out_dir, *, train=None, test=None, samp
     sampler : {"nuts", "emcee"}
         ``emcee`` runs ``ensembles`` (default ``chains``) independent ensembles of
         ``walkers`` walkers for ``warmup + draws`` steps each and keeps the last ``draws``.
-    adapt_mass_matrix : bool
-        NUTS only: keep adapting the Laplace mass matrix in warm-up (see
-        :func:`heli_uq.inference.run_nuts` for when ``False`` is faster).
+    adapt_mass_matrix, target_accept
+        NUTS only, see :func:`heli_uq.inference.run_nuts`.
     """
     if sampler not in SAMPLERS:
         raise ParameterError(f"--sampler: expected one of {SAMPLERS}, found {sampler!r}")
@@ -60,7 +59,7 @@ def sample_posterior(record: Experiment, out_dir, *, train=None, test=None, samp
     if sampler == "nuts":
         run = run_nuts(problem, out, chains=chains, warmup=warmup, draws=draws, seed=seed,
                        resume=resume, progress=progress, start=start,
-                       adapt_mass_matrix=adapt_mass_matrix)  # fmt: skip
+                       adapt_mass_matrix=adapt_mass_matrix, target_accept=target_accept)  # fmt: skip
     else:
         from heli_uq.ensemble import run_emcee
 

@@ -13,10 +13,12 @@ INVARIANCE_ATOL = 1e-9  # rad: angles unchanged along an unidentified coordinate
 JACOBIAN_RTOL = 1e-6
 
 
-@pytest.fixture(params=["h_free", "h_zero", "log"])
+@pytest.fixture(params=["h_free", "h_free_pitched", "h_zero", "log"])
 def coords(request):
     if request.param == "h_free":
         return Coordinates(default_priors())
+    if request.param == "h_free_pitched":
+        return Coordinates(default_priors(), yaw_theta_ref=0.3)
     if request.param == "h_zero":
         return Coordinates(update_priors(default_priors(), {"h": 0.0}))
     return Coordinates(default_priors(), "log")
@@ -97,3 +99,30 @@ def test_scale_is_integrated_out_exactly():
     cond = float(coords.log_prior(z.at[0].set(s))) - float(log_marginal)
     gauss = -0.5 * 0.7**2 - np.log(float(sd)) - 0.5 * np.log(2 * np.pi)
     assert abs(cond - gauss) < 1e-9
+
+
+def test_yaw_gains_are_relative_to_the_yaw_inertia_at_the_reference_pitch():
+    """At theta = yaw_theta_ref and omega_theta = 0 the yaw acceleration depends on the
+    yaw-gain coordinates only: moving log_J_s_ratio (which changes M22) leaves it fixed,
+    while the pitch acceleration (torques relative to M11) is unchanged too."""
+    from heli_uq.dynamics import HelicopterModel
+    from heli_uq.params import HeliParams
+
+    theta_ref = -0.4
+    coords = Coordinates(default_priors(), yaw_theta_ref=theta_ref)
+    z = jnp.asarray(coords.from_physical(TABLE1))
+    i = coords.names.index("log_J_s_ratio")
+    y = jnp.array([theta_ref, 0.3, 0.0, 0.7])
+    u = jnp.array([1.3, 0.9])
+
+    def accel(zz, state=y):
+        params = HeliParams.from_mapping(coords.to_physical(zz))
+        return HelicopterModel()(0.0, state, (params, u))[2:]
+
+    base = accel(z)
+    moved = accel(z.at[i].add(1.5))
+    np.testing.assert_allclose(moved, base, rtol=1e-12)
+    # away from the reference pitch the same move does change the yaw acceleration
+    y_off = y.at[0].set(theta_ref + 0.6)
+    off, off_moved = accel(z, y_off)[1], accel(z.at[i].add(1.5), y_off)[1]
+    assert abs(float(off_moved - off)) > 1e-3 * abs(float(off))

@@ -386,6 +386,10 @@ def _cmd_sample(args) -> int:
     for name in ("chains", "warmup", "draws"):
         if getattr(args, name) <= 0:
             raise ParameterError(f"--{name}: expected a positive integer, found {getattr(args, name)}")
+    from heli_uq.inference import TARGET_ACCEPT
+
+    if args.target_accept is None:
+        args.target_accept = TARGET_ACCEPT
     if not 0.0 < args.target_accept < 1.0:
         raise ParameterError(f"--target-accept: expected a number in (0, 1), found {args.target_accept}")
     if args.sampler == "nuts":
@@ -458,10 +462,10 @@ def _add_sample(subparsers) -> None:
     p.add_argument("--adapt-mass-matrix", choices=["on", "off"], default="on",
                    help="NUTS: adapt a dense mass matrix in warm-up, in coordinates whitened by"
                         " the Laplace covariance (default: on); 'off' keeps the Laplace matrix")
-    p.add_argument("--target-accept", type=float, default=0.9,
+    p.add_argument("--target-accept", type=float, default=None,
                    help="NUTS: target acceptance of step-size adaptation, in (0, 1) (default:"
-                        " 0.9); raise to 0.95-0.99 if a short or low-noise record gives"
-                        " divergences (smaller steps, longer trees)")
+                        " heli_uq.inference.TARGET_ACCEPT = 0.95); raise towards 0.99 if a short"
+                        " or low-noise record gives divergences (smaller steps, longer trees)")
     p.add_argument("--walkers", type=int, default=None,
                    help="emcee walkers per ensemble (default: 2 * dim + 2)")
     p.add_argument("--error", choices=["iid", "ar1"], default="ar1",

@@ -33,8 +33,10 @@ from heli_uq.optimize import (
 __all__ = ["SamplerRun", "prepare_start", "run_nuts"]
 
 NUTS_EXTRA_FIELDS = ("diverging", "num_steps", "energy", "accept_prob", "potential_energy")
-#: Default target acceptance of the step-size adaptation.
-TARGET_ACCEPT = 0.9
+#: Default target acceptance of the step-size adaptation.  On the full rig record
+#: (4 x (1000 + 1000), iid errors) 0.9 gave 1 divergence in 4000 draws and 15.8 leapfrog
+#: steps per draw, 0.95 none and 17.0 steps (+8 % gradients).
+TARGET_ACCEPT = 0.95
 #: Chains start at ``w ~ N(0, INIT_SPREAD^2 I)`` in whitened coordinates (1: a Laplace draw);
 #: a start where the model fails is redrawn up to MAX_INIT_ROUNDS times, then set to the MAP.
 INIT_SPREAD = 1.0

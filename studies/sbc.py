@@ -19,8 +19,12 @@ the model's initial-angle prior on the generator's centre instead, so the genera
 the inference prior agree; ``data`` keeps the package's data-centred prior.
 
 Sampler: the package's ``prepare_start`` (Newton-polished MAP, ``--map-maxiter 0``) and
-``run_nuts`` with the Laplace mass matrix kept fixed (``--adapt-mass-matrix`` off): the
-dense adaptation collapses the step size on these records (see ``run_nuts``).
+``run_nuts`` without mass-matrix adaptation (the Laplace covariance kept; add
+``--adapt-mass-matrix`` for the package default).  The recorded 60-replicate result
+(``studies/results/sbc``) was run before ``run_nuts`` moved to Laplace-whitened
+coordinates (when adaptation in raw coordinates collapsed the step size), before the yaw
+gains were sampled relative to M22, with target acceptance 0.85 (now 0.95) and the chain
+started at the MAP (now at a Laplace draw).  It has not been rerun since.
 
 Each replicate is saved to ``--out/rep_XXXX.json`` as it finishes; running again skips
 finished replicates (resume).  ``--plot`` draws the rank histograms with the 99 % band of

@@ -148,7 +148,8 @@ def test_cli_sample_end_to_end(tmp_path, capsys):
     assert "m" in (out / "summary.csv").read_text()
     capsys.readouterr()  # forget the successful run's output (arviz logs 1-chain warnings)
     for bad in (["--train", "0:1.5", "--test", "1:2"], ["--draws", "0"],
-                ["--window", "5:9"], ["--fix", "m=lognormal:1:1"]):  # fmt: skip
+                ["--window", "5:9"], ["--fix", "m=lognormal:1:1"],
+                ["--target-accept", "1.0"]):  # fmt: skip
         code = main(["sample", "--data", str(csv), "--out", str(out), *bad])
         assert code == 2
         err = capsys.readouterr().err

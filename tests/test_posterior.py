@@ -168,3 +168,29 @@ def test_ar1_model_uses_the_correlation_time(tmp_path):
     np.testing.assert_allclose(sites["rho"], np.exp(-record.dt / np.asarray(sites["tau"])),
                                rtol=1e-12)  # fmt: skip
     assert np.isfinite(float(density.potential(jnp.asarray(density.x_init))))
+
+
+def test_cli_run_main_job_end_to_end(tmp_path, capsys):
+    """``heli-uq run`` on a record file: figures, simulations and the posterior stage with the
+    documented train/test split (first 91/131 of the record for training)."""
+    from heli_uq.cli import RUN_TRAIN_FRACTION
+
+    record = synthetic_experiment(duration=2.0, seed=5, noise_std=(0.003, 0.003))
+    csv = tmp_path / "rec.csv"
+    record.to_csv(csv)
+    out = tmp_path / "out"
+    code = main(["run", "--data", str(csv), "--chains", "1", "--warmup", "40", "--draws", "30",
+                 "--no-progress", "--out", str(out)])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    for f in ("data/data.png", "table3/simulation.png", "record_table1/simulation.csv",
+              "posterior/posterior.nc", "posterior/bands.png", "posterior/summary.json"):  # fmt: skip
+        assert (out / f).is_file(), f
+    idata = az.from_netcdf(out / "posterior" / "posterior.nc")
+    n_train = int(idata.constant_data["train_mask"].sum())
+    n_test = int(idata.constant_data["test_mask"].sum())
+    assert n_train + n_test == record.n
+    assert abs(n_train - RUN_TRAIN_FRACTION * record.n) <= 1
+    summary = json.loads((out / "posterior" / "summary.json").read_text())
+    assert set(summary["windows"]) == {"train", "test"}
+    assert summary["error_model"] == "iid"
+    assert main(["run", "--data", str(csv), "--draws", "0", "--out", str(out)]) == 2

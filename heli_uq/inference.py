@@ -122,7 +122,7 @@ def _load_chunks(chunks: pathlib.Path):
 
 def _whitening(start_info: dict) -> tuple[np.ndarray, np.ndarray]:
     """``(x_map, L)`` with ``L L^T`` the Laplace covariance: ``x = x_map + L w``."""
-    cov = np.asarray(start_info["inverse_mass_matrix"], dtype=float)
+    cov = np.asarray(start_info["laplace_covariance"], dtype=float)
     return np.asarray(start_info["x_map"], dtype=float), np.linalg.cholesky(0.5 * (cov + cov.T))
 
 
@@ -202,7 +202,7 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         info = {"map_value": float(start.map_value), "map_seconds": float(start.map_seconds),
                 "map_grad_max": float(start.map_grad_max),
                 "map_decrement": float(start.map_decrement),
-                "x_map": start.x_map, "inverse_mass_matrix": start.covariance}  # fmt: skip
+                "x_map": start.x_map, "laplace_covariance": start.covariance}  # fmt: skip
         atomic_write_bytes(chunks / "start.pkl", pickle.dumps(info))
     density = start.density if start is not None else log_density_setup(problem, seed=seed)
     x_map, lower = _whitening(info)

@@ -138,7 +138,7 @@ def to_inference_data(problem: Problem, run, *, prior_draws: int = 500, seed: in
     idata.extend(pp)
     idata.extend(az.from_dict(log_likelihood={"y": ll}, coords={**coords, **ll_coords},
                               dims=ll_dims))  # fmt: skip
-    info = {k: v for k, v in run.info.items() if k not in ("x_map", "inverse_mass_matrix")}
+    info = {k: v for k, v in run.info.items() if k not in ("x_map", "laplace_covariance")}
     idata.posterior.attrs.update({
         "sampler_info": json.dumps(info, default=lambda o: np.asarray(o).tolist()),
         "error_model": problem.error, "source": problem.source,

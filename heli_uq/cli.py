@@ -389,7 +389,7 @@ def _add_run(subparsers) -> None:
             "  DIR/record_table2/simulation.{csv,png} the record's inputs, Table 2\n"
             "  DIR/posterior/{posterior.nc,summary.json,summary.csv,bands.png}\n"
             "      NUTS posterior (iid errors) on the first 91/131 of the record, bands\n"
-            "      with the rest held out (about 6 min on the rig record, 2 cores)\n"
+            "      with the rest held out (6.5 min on the rig record, 2 cores)\n"
             "The real record is used when available ($HELI_UQ_DATA or a checked\n"
             "download); otherwise the embedded synthetic default (seed 0) is used."
         ),

@@ -52,7 +52,7 @@ def _ess_min(samples: dict) -> float:
     return float(min(float(ess[k].min()) for k in ess.data_vars))
 
 
-def _emcee_steps(problem, start, budget_s: float, ensembles: int, walkers: int) -> int:
+def _emcee_steps(start, budget_s: float, ensembles: int, walkers: int) -> int:
     log_prob = _log_prob_fn(start.density)
     x = np.repeat(np.asarray(start.x_map)[None], walkers, axis=0)
     log_prob(x)  # compile
@@ -101,7 +101,7 @@ def main(argv=None) -> int:
         nuts_info = {"divergences": int(run.stats["diverging"].sum()),
                      "mean_leapfrog_steps": float(run.stats["num_steps"].mean())}
     walkers = args.walkers or 2 * start.density.dim + 2
-    steps = _emcee_steps(problem, start, nuts_s, args.chains, walkers)
+    steps = _emcee_steps(start, nuts_s, args.chains, walkers)
     t0 = time.perf_counter()
     em = run_emcee(problem, work / "emcee", ensembles=args.chains, walkers=walkers,
                    steps=steps, seed=args.seed, start=start, progress=False)  # fmt: skip

@@ -68,6 +68,6 @@ def read_json_object(path, what: str) -> dict:
         ) from None
     if not isinstance(raw, dict):
         raise ParameterError(
-            f"{path}: expected a JSON object of parameter names, found {type(raw).__name__}"
+            f"{path}: expected a JSON object ({what} file), found {type(raw).__name__}"
         )
     return raw

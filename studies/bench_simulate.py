@@ -1,27 +1,40 @@
 """Benchmark the simulator on the full rig record against scipy's LSODA, in one run.
 
-Prints ratios and appends one JSON line to ``--out`` (default
+Prints medians and minima and appends one JSON line to ``--out`` (default
 ``studies/results/bench_simulate.jsonl``).  Usage::
 
-    python studies/bench_simulate.py [--repeats 20] [--out FILE]
+    python studies/bench_simulate.py [--repeats 50] [--data experimental] [--out FILE]
 
 Measured on the record's own inputs (13,100 samples, dt = 0.01 s, zero-order hold)
-with the paper's Table 1 ("fitted-looking") parameters:
+with the paper's Table 1 ("fitted-looking") parameters and ``x0`` = (first measured
+angles, zero rates):
 
-* forward: ``jax.jit(simulate)`` vs ``scipy.integrate.solve_ivp(method="LSODA",
-  rtol=1e-6)`` with the same held inputs (one call, t_eval on the grid);
-* gradient: ``jax.jit(jax.grad(V))`` of the paper's loss (Eq. 1) wrt all 12
-  parameters and the initial state, relative to the forward solve;
-* a batch of 8 parameter sets under ``jax.vmap`` (forward and gradient);
-* accuracy: max angle error vs a DOP853 reference (rtol 1e-11) restarted at each switch.
+* forward: ``jax.jit(simulate)`` (RK4, one step per sample) vs
+  ``scipy.integrate.solve_ivp(method="LSODA", rtol=1e-6)`` with the same held inputs
+  (one call, ``t_eval`` on the grid);
+* gradient: ``jax.jit(jax.grad(V))`` of the paper's loss (Eq. 1, [rad^2]) wrt every
+  parameter and the initial state, through the discrete adjoint and through plain
+  reverse-mode autodiff, relative to the forward solve (``grad / forward``);
+* a batch of 8 parameter sets (Table 1 scaled by 0.95 ... 1.05) under ``jax.vmap``
+  (forward and gradient);
+* the same forward / gradient / ratio for two models with one yaw effect:
+  ``yaw:coulomb_friction`` with ``F_c_yaw`` = 0.004 N m (stiff: at the substeps
+  :func:`heli_uq.simulate.default_substeps` gives over the record's pitch angles, as
+  :func:`heli_uq.probability.make_problem` does) and ``yaw:torque_offset`` with
+  ``T_0_yaw`` = 0.002 N m (smooth: 1 substep);
+* accuracy: max angle error [rad] vs the DOP853 reference of ``tests/reference.py``
+  (rtol 1e-11, restarted at each switch of the inputs).
+
+Timing: every timed function is compiled and run once, then the functions are called
+in turn (interleaved, the order rotated each round) ``--repeats`` times, so a slow
+phase of a shared machine hits all of them alike; the JSON line keeps the median and
+the minimum of each [ms].
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
 import pathlib
 import sys
 import time
@@ -33,68 +46,118 @@ from scipy.integrate import solve_ivp
 
 import heli_uq
 from heli_uq.data import load_data
+from heli_uq.model import TABLE1, parse_effects
+from heli_uq.simulate import default_substeps
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
+from _study import RESULTS, append_jsonl, provenance  # noqa: E402
 from reference import reference_solution, vector_field  # noqa: E402
 
-
-def _median_ms(fn, repeats):
-    jax.block_until_ready(fn())
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(times))
+#: Rounds of the interleaved timing (each round calls every timed function once).
+REPEATS = 50
+#: Parameter sets of the vmap benchmark: Table 1 times these factors.
+BATCH_SCALES = np.linspace(0.95, 1.05, 8)
+#: LSODA's relative tolerance (the old study's choice).
+LSODA_RTOL = 1e-6
+#: The one-effect models: effects text, the effect parameter's value [N m] and whether
+#: the substeps come from ``default_substeps`` (stiff) or are 1 (smooth).
+EFFECT_CASES = (
+    ("yaw:coulomb_friction", {"F_c_yaw": 0.004}, "default"),
+    ("yaw:torque_offset", {"T_0_yaw": 0.002}, 1),
+)
 
 
 def _lsoda(params, x0, u, dt):
+    """States (N, 4) by LSODA with the inputs held on each sample interval."""
     n = len(u)
 
     def rhs(t, y):
         return vector_field(t, y, params, u[min(int(t / dt), n - 1)])
 
     t = np.arange(n) * dt
-    return solve_ivp(rhs, (0.0, t[-1]), x0, method="LSODA", rtol=1e-6, t_eval=t).y.T
+    return solve_ivp(rhs, (0.0, t[-1]), x0, method="LSODA", rtol=LSODA_RTOL, t_eval=t).y.T
+
+
+def interleaved_ms(fns: dict, repeats: int) -> dict[str, np.ndarray]:
+    """Wall times [ms] of ``repeats`` calls of each function, interleaved.
+
+    Each function is called once first (compilation, caches).  Then every round calls all
+    of them, in an order rotated by one each round, each timed to
+    ``jax.block_until_ready`` of its result.
+    """
+    names = list(fns)
+    for name in names:
+        jax.block_until_ready(fns[name]())
+    times = {name: [] for name in names}
+    for r in range(repeats):
+        k = r % len(names)
+        for name in names[k:] + names[:k]:
+            t0 = time.perf_counter()
+            jax.block_until_ready(fns[name]())
+            times[name].append(time.perf_counter() - t0)
+    return {name: 1e3 * np.asarray(t) for name, t in times.items()}
+
+
+def _stats(ms: np.ndarray) -> dict:
+    return {"median_ms": float(np.median(ms)), "min_ms": float(np.min(ms))}
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default="experimental", help="record: 'experimental' or CSV path")
-    ap.add_argument("--repeats", type=int, default=20)
-    ap.add_argument("--out", default="studies/results/bench_simulate.jsonl")
+    ap.add_argument("--repeats", type=int, default=REPEATS,
+                    help=f"interleaved timing rounds (default {REPEATS})")
+    ap.add_argument("--out", default=str(RESULTS / "bench_simulate.jsonl"))
     args = ap.parse_args(argv)
+    t_run = time.perf_counter()
 
     exp = load_data(args.data)
     u, y, dt = jnp.asarray(exp.u), jnp.asarray(exp.y), exp.dt
-    params = dict(heli_uq.TABLE1)
+    params = dict(TABLE1)
     x0 = jnp.array([exp.y[0, 0], exp.y[0, 1], 0.0, 0.0])
+    x0n, un = np.asarray(x0), np.asarray(u)
+
+    def loss(p, x, **kw):
+        return heli_uq.loss_v(heli_uq.simulate(p, x, u, dt, **kw), y)
 
     fwd = jax.jit(lambda p, x: heli_uq.simulate(p, x, u, dt))
-    loss = lambda p, x: heli_uq.loss_v(heli_uq.simulate(p, x, u, dt), y)  # noqa: E731
     grad = jax.jit(jax.grad(loss, argnums=(0, 1)))
-    grad_plain = jax.jit(
-        jax.grad(lambda p, x: heli_uq.loss_v(
-            heli_uq.simulate(p, x, u, dt, gradients="autodiff"), y), argnums=(0, 1))
-    )  # fmt: skip
-    scales = jnp.linspace(0.95, 1.05, 8)
-    batch = {k: v * scales for k, v in params.items()}
+    grad_plain = jax.jit(jax.grad(lambda p, x: loss(p, x, gradients="autodiff"), argnums=(0, 1)))
+    batch = {k: v * jnp.asarray(BATCH_SCALES) for k, v in params.items()}
     fwd8 = jax.jit(jax.vmap(lambda p: heli_uq.simulate(p, x0, u, dt)))
     grad8 = jax.jit(jax.vmap(jax.grad(lambda p: loss(p, x0))))
+    fns = {
+        "forward": lambda: fwd(params, x0),
+        "grad": lambda: grad(params, x0),
+        "grad_plain_autodiff": lambda: grad_plain(params, x0),
+        "vmap8_forward": lambda: fwd8(batch),
+        "vmap8_grad": lambda: grad8(batch),
+        "lsoda": lambda: _lsoda(params, x0n, un, dt),
+    }
+    effects = {}
+    for text, values, substeps in EFFECT_CASES:
+        model = parse_effects(text)
+        p_eff = {**params, **values}
+        n_sub = (default_substeps(model, p_eff, dt, thetas=exp.y[:, 0]) if substeps == "default"
+                 else substeps)  # fmt: skip
+        kw = {"model": model, "substeps": n_sub}
+        f_e = jax.jit(lambda p, x, kw=kw: heli_uq.simulate(p, x, u, dt, **kw))
+        g_e = jax.jit(jax.grad(lambda p, x, kw=kw: loss(p, x, **kw), argnums=(0, 1)))
+        fns[f"{text}/forward"] = lambda f=f_e, p=p_eff: f(p, x0)
+        fns[f"{text}/grad"] = lambda g=g_e, p=p_eff: g(p, x0)
+        effects[text] = {"values": values, "substeps": n_sub}
 
-    t_fwd = _median_ms(lambda: fwd(params, x0), args.repeats)
-    t_grad = _median_ms(lambda: grad(params, x0), args.repeats)
-    t_grad_plain = _median_ms(lambda: grad_plain(params, x0), max(3, args.repeats // 4))
-    t_fwd8 = _median_ms(lambda: fwd8(batch), args.repeats)
-    t_grad8 = _median_ms(lambda: grad8(batch), max(3, args.repeats // 4))
-    x0n, un = np.asarray(x0), np.asarray(u)
-    lsoda_times = []
-    for _ in range(5):
-        t0 = time.perf_counter()
-        ls = _lsoda(params, x0n, un, dt)
-        lsoda_times.append(time.perf_counter() - t0)
-    t_lsoda = 1e3 * float(np.median(lsoda_times))
+    ms = interleaved_ms(fns, args.repeats)
+    st = {name: _stats(v) for name, v in ms.items()}
+    med = {name: s["median_ms"] for name, s in st.items()}
+    low = {name: s["min_ms"] for name, s in st.items()}
+    for text, case in effects.items():
+        f, g = f"{text}/forward", f"{text}/grad"
+        case.update(forward_ms=med[f], forward_min_ms=low[f], grad_ms=med[g], grad_min_ms=low[g],
+                    grad_over_forward=med[g] / med[f], grad_over_forward_min=low[g] / low[f])
 
+    ls = _lsoda(params, x0n, un, dt)
     ref = reference_solution(params, x0n, un, dt)
     ours = np.asarray(fwd(params, x0))
     err = float(np.max(np.abs(ours[:, :2] - ref[:, :2])))
@@ -103,34 +166,56 @@ def main(argv=None):
         "benchmark": "simulate_full_record",
         "n_samples": int(len(u)),
         "dt_s": dt,
-        "forward_ms": t_fwd,
-        "lsoda_ms": t_lsoda,
-        "speedup_vs_lsoda": t_lsoda / t_fwd,
-        "grad_ms": t_grad,
-        "grad_over_forward": t_grad / t_fwd,
-        "grad_plain_autodiff_ms": t_grad_plain,
-        "vmap8_forward_ms": t_fwd8,
-        "vmap8_forward_per_set_ms": t_fwd8 / 8,
-        "vmap8_grad_ms": t_grad8,
+        "repeats": args.repeats,
+        "timing": "interleaved, median (and *_min_ms minimum) over repeats",
+        "forward_ms": med["forward"],
+        "forward_min_ms": low["forward"],
+        "lsoda_ms": med["lsoda"],
+        "lsoda_min_ms": low["lsoda"],
+        "speedup_vs_lsoda": med["lsoda"] / med["forward"],
+        "grad_ms": med["grad"],
+        "grad_min_ms": low["grad"],
+        "grad_over_forward": med["grad"] / med["forward"],
+        "grad_over_forward_min": low["grad"] / low["forward"],
+        "grad_plain_autodiff_ms": med["grad_plain_autodiff"],
+        "grad_plain_autodiff_min_ms": low["grad_plain_autodiff"],
+        "vmap8_forward_ms": med["vmap8_forward"],
+        "vmap8_forward_min_ms": low["vmap8_forward"],
+        "vmap8_forward_per_set_ms": med["vmap8_forward"] / len(BATCH_SCALES),
+        "vmap8_grad_ms": med["vmap8_grad"],
+        "vmap8_grad_min_ms": low["vmap8_grad"],
+        "effects": effects,
         "max_angle_error_rad": err,
         "lsoda_max_angle_error_rad": err_lsoda,
         "loss_v_table1": float(loss(params, x0)),
-        "jax": jax.__version__,
-        "cpu_count": os.cpu_count(),
-        "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
     }
-    print(f"forward (jit, RK4, 1 step/sample): {t_fwd:8.2f} ms   LSODA rtol=1e-6: {t_lsoda:8.2f} ms"
-          f"   speed-up x{t_lsoda / t_fwd:.1f}")
-    print(f"grad of V (discrete adjoint):      {t_grad:8.2f} ms   = {t_grad / t_fwd:.1f} x forward"
-          f"   (plain reverse-mode: {t_grad_plain:.1f} ms = {t_grad_plain / t_fwd:.1f} x)")
-    print(f"vmap over 8 parameter sets:        forward {t_fwd8:.2f} ms ({t_fwd8 / 8:.2f} ms/set),"
-          f" grad {t_grad8:.2f} ms ({t_grad8 / 8:.2f} ms/set)")
+    record.update(provenance(__file__, argv, time.perf_counter() - t_run))
+
+    def row(label, name):
+        return f"{label:34s} {med[name]:9.2f} ms (min {low[name]:9.2f})"
+
+    print(f"{args.repeats} interleaved rounds; median (min) per call")
+    print(row("forward (jit, RK4, 1 step/sample):", "forward"))
+    print(row(f"LSODA rtol={LSODA_RTOL:g}:", "lsoda")
+          + f"   speed-up x{med['lsoda'] / med['forward']:.1f}")
+    print(row("grad of V (discrete adjoint):", "grad")
+          + f"   grad / forward = {record['grad_over_forward']:.2f}"
+          f" (min/min {record['grad_over_forward_min']:.2f})")
+    print(row("grad of V (plain reverse mode):", "grad_plain_autodiff")
+          + f"   = {med['grad_plain_autodiff'] / med['forward']:.1f} x forward")
+    print(row("vmap over 8 sets, forward:", "vmap8_forward")
+          + f"   ({record['vmap8_forward_per_set_ms']:.2f} ms/set)")
+    print(row("vmap over 8 sets, grad:", "vmap8_grad")
+          + f"   ({med['vmap8_grad'] / len(BATCH_SCALES):.2f} ms/set)")
+    for text, case in effects.items():
+        tag = f"{text} ({case['substeps']} substeps)"
+        print(f"{tag:34s} forward {case['forward_ms']:8.2f} ms (min {case['forward_min_ms']:.2f}),"
+              f" grad {case['grad_ms']:8.2f} ms (min {case['grad_min_ms']:.2f}),"
+              f" grad / forward = {case['grad_over_forward']:.2f}"
+              f" (min/min {case['grad_over_forward_min']:.2f})")
     print(f"accuracy vs DOP853 rtol 1e-11: max angle error {err:.2e} rad (LSODA: {err_lsoda:.2e})")
-    out = pathlib.Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with open(out, "a", encoding="utf-8") as fh:
-        fh.write(json.dumps(record) + "\n")
-    print(f"wrote {out}")
+    out = append_jsonl(args.out, record)
+    print(f"appended to {out}")
     return 0 if math.isfinite(err) else 1
 
 

@@ -1,12 +1,14 @@
 """Simulation-based calibration (SBC) of the NUTS posterior on short synthetic records.
 
-For each replicate ``r``: draw the Table 2 parameters from the study prior (log-normal,
-sigma_log ``--prior-sd`` around Table 1; h ~ normal(0, 5 mm); g fixed), the residual scale
-from the model's ``sigma`` prior, simulate a ``--duration`` s record with random step
-inputs and iid noise, run the package's NUTS (MAP start, Laplace mass matrix) under the
-*same* prior, and record the rank of the true value of every sampled coordinate (the
-identifiable ratios of :mod:`heli_uq.reparam`) among ``--ranks`` thinned draws, and
-whether the central 90 % interval covers it.
+For each replicate ``r``: draw the paper's 12 parameters from the study prior (log-normal,
+sigma_log ``--prior-sd`` around Table 1; h ~ normal(0, ``--h-sd``); g fixed), one residual
+scale [rad] for both angles from the model's ``sigma`` prior
+(:data:`heli_uq.probability.priors.SIGMA_PRIOR`), simulate a ``--duration`` s record with
+random step inputs (:func:`heli_uq.simulate.synthetic_experiment`) and iid noise, run the
+package's NUTS (MAP start, Laplace mass matrix) under the *same* parameter prior, and
+record the rank of the true value of every sampled coordinate (the identifiable ratios of
+:mod:`heli_uq.probability.coordinates`) among ``--ranks`` thinned draws, and whether the
+central 90 % interval covers it.
 
 A failed simulation of a prior draw is redrawn: the model gives such parameters zero
 posterior mass (``solver_ok``), so the generating and the inference prior are the same
@@ -14,21 +16,30 @@ truncated prior.  The package's model centres the initial-angle prior on the fir
 measurement; the truth is drawn around the synthetic default start instead.  That makes
 the two priors differ whenever the noise sigma is not small next to ``X0_ANGLE_SD``
 (0.05 rad; the sigma prior has median 0.05 rad and reaches 2 rad), and it visibly breaks
-the ranks of high-noise replicates.  ``--x0-prior generator`` (use it for SBC) centres
-the model's initial-angle prior on the generator's centre instead, so the generating and
-the inference prior agree; ``data`` keeps the package's data-centred prior.
+the ranks of high-noise replicates.  ``--x0-prior generator`` (use it for SBC) gives the
+model explicit initial-angle priors ``normal(SYNTHETIC_X0, X0_ANGLE_SD)``
+(:meth:`heli_uq.probability.PriorSet.updated`), so the generating and the inference prior
+agree; ``data`` keeps the package's data-centred prior.
+
+The generator draws *one* residual scale for both angles, the model has independent
+``sigma_theta`` and ``sigma_psi`` priors; the ranked quantities are the model parameters'
+coordinates only.
 
 Sampler: the package's ``prepare_start`` (Newton-polished MAP, ``--map-maxiter 0``) and
 ``run_nuts`` without mass-matrix adaptation (the Laplace covariance kept; add
 ``--adapt-mass-matrix`` for the package default).  The recorded 60-replicate result
 (``studies/results/sbc``) was run before ``run_nuts`` moved to Laplace-whitened
 coordinates (when adaptation in raw coordinates collapsed the step size), before the yaw
-gains were sampled relative to M22, with target acceptance 0.85 (now 0.95) and the chain
-started at the MAP (now at a Laplace draw).  It has not been rerun since.
+gains were sampled relative to M22 (the yaw coordinates are now named
+``log_<X>_yaw_ratio``), with target acceptance 0.85 (now 0.95) and the chain started at
+the MAP (now at a Laplace draw), and before the package was split into one folder per
+stage.  It has not been rerun since.
 
 Each replicate is saved to ``--out/rep_XXXX.json`` as it finishes; running again skips
 finished replicates (resume).  ``--plot`` draws the rank histograms with the 99 % band of
-a uniform rank distribution to ``studies/figures/sbc_ranks.png`` and writes the summary.
+a uniform rank distribution to ``studies/figures/sbc_ranks.png`` and writes the summary
+(``--out/summary.json``).  Each replicate and the summary carry a ``provenance`` entry
+(package and JAX versions, command line, wall time [s]).
 
 Usage::
 
@@ -41,7 +52,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import pathlib
 import sys
@@ -52,60 +62,67 @@ import jax
 import numpy as np
 from scipy import stats
 
-from heli_uq.data import SYNTHETIC_X0, synthetic_experiment
 from heli_uq.errors import DataFormatError
+from heli_uq.figure import new_figure, save_figure
 from heli_uq.inference import prepare_start, run_nuts
 from heli_uq.io import atomic_write_text
-from heli_uq.model import Problem, make_problem
-from heli_uq.params import PARAM_NAMES, TABLE1
-from heli_uq.priors import SIGMA_PRIOR, X0_ANGLE_SD, X0_RATE_SD, Prior, default_priors, update_priors
+from heli_uq.model import TABLE1, HeliModel, Prior
+from heli_uq.probability import PriorSet, make_problem
+from heli_uq.probability.priors import SIGMA_PRIOR, X0_ANGLE_SD, X0_RATE_SD
+from heli_uq.simulate import SYNTHETIC_X0, synthetic_experiment
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from _study import provenance  # noqa: E402
+
+#: The model of the study: the paper's (12 parameters, no effects).
+MODEL = HeliModel()
+#: Parameters the study prior leaves at the model's default prior (g is fixed there) or
+#: sets separately (h, ``--h-sd``).
+NOT_LOGNORMAL = ("g", "h")
+#: Initial-state entries whose prior ``--x0-prior generator`` centres on SYNTHETIC_X0.
+X0_ANGLES = ("theta0", "psi0")
+#: Prior draws tried per replicate before giving up (a draw whose simulation is not
+#: finite, or whose angles leave |angle| < MAX_ANGLE [rad], is redrawn).
+MAX_REDRAWS = 100
+MAX_ANGLE = 50.0
 
 
-def study_priors(prior_sd: float, h_sd: float) -> dict:
-    changes = {n: Prior("lognormal", TABLE1[n], prior_sd) for n in PARAM_NAMES if n not in ("g", "h")}
+def study_priors(prior_sd: float, h_sd: float, x0_prior: str = "data") -> PriorSet:
+    """The study prior: log-normal (sigma_log ``prior_sd``) around Table 1, h ~ normal(0,
+    ``h_sd`` [m]) or fixed at 0, g fixed; with ``x0_prior="generator"`` the initial angles'
+    prior is ``normal(SYNTHETIC_X0, X0_ANGLE_SD)`` instead of the data-centred default."""
+    changes = {n: Prior("lognormal", TABLE1[n], prior_sd) for n in MODEL.names
+               if n not in NOT_LOGNORMAL}  # fmt: skip
     changes["h"] = Prior("normal", 0.0, h_sd) if h_sd > 0 else Prior("fixed", 0.0)
-    return update_priors(default_priors(), changes)
+    if x0_prior == "generator":
+        changes.update({n: Prior("normal", SYNTHETIC_X0[i], X0_ANGLE_SD)
+                        for i, n in enumerate(X0_ANGLES)})  # fmt: skip
+    return PriorSet.default(MODEL).updated(MODEL, changes, where="sbc prior")
 
 
-def draw_replicate(r: int, priors: dict, duration: float):
+def draw_replicate(r: int, priors: PriorSet, duration: float):
     """Truth and record of replicate ``r`` (redrawn until the simulation is finite)."""
     rng = np.random.default_rng([2026, r])
-    for attempt in range(100):
-        truth = {n: float(priors[n].sample(rng)) for n in PARAM_NAMES}
-        sigma = float(np.exp(rng.normal(np.log(SIGMA_PRIOR[0]), SIGMA_PRIOR[1])))
+    for attempt in range(MAX_REDRAWS):
+        truth = {n: float(priors.params[n].sample(rng)) for n in MODEL.names}
+        sigma = float(SIGMA_PRIOR.sample(rng))
         x0 = np.array(SYNTHETIC_X0) + rng.normal(size=4) * [X0_ANGLE_SD, X0_ANGLE_SD,
                                                            X0_RATE_SD, X0_RATE_SD]
         try:
             rec = synthetic_experiment(truth, x0, duration=duration, noise_std=(sigma, sigma),
-                                       seed=int(rng.integers(2**31)))
+                                       seed=int(rng.integers(2**31)), model=MODEL)
         except DataFormatError:
             continue
-        if np.all(np.abs(rec.y) < 50):
+        if np.all(np.abs(rec.y) < MAX_ANGLE):
             return truth, sigma, x0, rec, attempt
-    raise RuntimeError(f"replicate {r}: no finite prior draw in 100 attempts")
+    raise RuntimeError(f"replicate {r}: no finite prior draw in {MAX_REDRAWS} attempts")
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class GeneratorX0Problem(Problem):
-    """A :class:`Problem` whose initial-angle prior is centred on the generator's centre
-    (``SYNTHETIC_X0``) instead of the first measurement, so the inference prior is the
-    generating prior (the data-centred prior is not a prior SBC can test: with noise
-    sigma ~ X0_ANGLE_SD it is off-centre by about one prior sd)."""
-
-    center: tuple = (0.0, 0.0)
-
-    @property
-    def x0_center(self) -> np.ndarray:
-        return np.asarray(self.center, dtype=float)
-
-
-def run_replicate(r: int, args) -> dict:
-    priors = study_priors(args.prior_sd, args.h_sd)
+def run_replicate(r: int, args, argv=None) -> dict:
+    t_rep = time.perf_counter()
+    priors = study_priors(args.prior_sd, args.h_sd, args.x0_prior)
     truth, sigma, x0, rec, redraws = draw_replicate(r, priors, args.duration)
-    problem = make_problem(rec, priors=priors, error="iid")
-    if args.x0_prior == "generator":
-        fields = {f.name: getattr(problem, f.name) for f in dataclasses.fields(Problem)}
-        problem = GeneratorX0Problem(**fields, center=tuple(SYNTHETIC_X0[:2]))
+    problem = make_problem(rec, model=MODEL, priors=priors, error="iid")
     coords = problem.coords
     z_true = coords.from_physical(truth)
     names = coords.sampled_names
@@ -135,12 +152,12 @@ def run_replicate(r: int, args) -> dict:
         out["ranks"][n] = int(np.sum(zt[:, i] < z_true[i]))
         lo, hi = np.quantile(z[:, i], [0.05, 0.95])
         out["covered90"][n] = bool(lo <= z_true[i] <= hi)
+    out["provenance"] = provenance(__file__, argv, time.perf_counter() - t_rep)
     return out
 
 
-def plot(reps: list, out_png: pathlib.Path, summary_path: pathlib.Path):
-    import matplotlib.pyplot as plt
-
+def plot(reps: list, out_png: pathlib.Path, summary_path: pathlib.Path, argv=None):
+    t0 = time.perf_counter()
     names = reps[0]["names"]
     big_l = min(r["L"] for r in reps)
     n = len(reps)
@@ -149,7 +166,8 @@ def plot(reps: list, out_png: pathlib.Path, summary_path: pathlib.Path):
     lo, hi = stats.binom.ppf([0.005, 0.995], n, 1 / bins)
     cols = 4
     rows = -(-len(names) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.4 * rows), squeeze=False)
+    fig = new_figure((3.2 * cols, 2.4 * rows))
+    axes = fig.subplots(rows, cols, squeeze=False)
     summary = {"replicates": n, "L": big_l, "quantities": {}}
     for ax, name in zip(axes.flat, names):
         ranks = np.array([min(r["ranks"][name], big_l) for r in reps])
@@ -190,13 +208,14 @@ def plot(reps: list, out_png: pathlib.Path, summary_path: pathlib.Path):
                  f"uniform ranks)", fontsize=11)  # fmt: skip
     fig.tight_layout()
     out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=120)
+    save_figure(fig, out_png)
     summary["divergences_total"] = int(sum(r["divergences"] for r in reps))
     summary["mean_steps"] = float(np.mean([r["mean_steps"] for r in reps]))
     summary["wall_s_mean"] = float(np.mean([r["wall_s"] for r in reps]))
     summary["step_size_mean"] = float(np.mean([np.mean(r.get("step_size", np.nan)) for r in reps]))
     summary["map_grad_max_max"] = float(max(r.get("map_grad_max", np.nan) for r in reps))
     summary["settings"] = reps[0].get("settings")
+    summary["provenance"] = provenance(__file__, argv, time.perf_counter() - t0)
     atomic_write_text(summary_path, json.dumps(summary, indent=1))
     print(json.dumps(summary, indent=1))
 
@@ -233,7 +252,7 @@ def main(argv=None):
             path = out / f"rep_{r:04d}.json"
             if path.exists() or r % n_shards != k or (args.only and r not in args.only):
                 continue
-            res = run_replicate(r, args)
+            res = run_replicate(r, args, argv)
             atomic_write_text(path, json.dumps(res))
             # Every replicate compiles new closures (its data are constants of the jitted
             # functions); without this a long run exhausts memory in LLVM compilation.
@@ -241,8 +260,11 @@ def main(argv=None):
             print(f"replicate {r}: {res['wall_s']:.0f} s, {res['divergences']} divergences, "
                   f"{res['mean_steps']:.0f} steps", flush=True)
     reps = [json.loads(p.read_text()) for p in sorted(out.glob("rep_*.json"))]
+    if len({tuple(r["names"]) for r in reps}) > 1:
+        sys.exit(f"{out}: the replicates have different coordinates (written by different "
+                 "package versions); keep them in separate --out directories")
     if args.plot and reps:
-        plot(reps, pathlib.Path(args.fig), out / "summary.json")
+        plot(reps, pathlib.Path(args.fig), out / "summary.json", argv)
     return 0
 
 

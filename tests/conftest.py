@@ -21,8 +21,8 @@ SYNTHETIC_NOISE = 0.003  # rad: the true residual sd of the shared synthetic rec
 
 @pytest.fixture(scope="session")
 def synthetic_problem():
-    from heli_uq.data import synthetic_experiment
-    from heli_uq.model import make_problem
+    from heli_uq.probability import make_problem
+    from heli_uq.simulate import synthetic_experiment
 
     record = synthetic_experiment(duration=4.0, seed=1, noise_std=(SYNTHETIC_NOISE,) * 2)
     return make_problem(record, error="iid")

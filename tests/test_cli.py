@@ -404,3 +404,51 @@ def test_console_script_and_module(tmp_path, small_record):
     )
     assert done.returncode == 2
     assert_one_line_error(done.stderr, "none.csv")
+
+
+# --------------------------------------------------------------------------- models
+
+
+def test_simulate_with_effects_and_model_file(tmp_path, capsys, small_record):
+    """--effects and --model-file build the same model; effect parameters come from
+    --params; the effect changes the trajectory."""
+    params = tmp_path / "p.json"
+    params.write_text('{"T_0_yaw": 0.01}')
+    outs = {}
+    for name, option in (("base", []), ("effects", ["--effects", "yaw:torque_offset"]),
+                         ("file", ["--model-file", str(tmp_path / "m.json")])):  # fmt: skip
+        (tmp_path / "m.json").write_text('{"effects": [{"effect": "torque_offset", "axis": "yaw"}]}')
+        extra = [] if name == "base" else ["--params", str(params)]
+        code, out, err = run(capsys, "simulate", "--inputs", str(small_record), *option, *extra,
+                             "--out", str(tmp_path / name))  # fmt: skip
+        assert code == 0, err
+        outs[name] = read_sim_csv(tmp_path / name / "simulation.csv")[1]
+    np.testing.assert_array_equal(outs["effects"], outs["file"])
+    assert np.max(np.abs(outs["effects"][:, 2] - outs["base"][:, 2])) > 1e-4  # psi moved
+
+
+@pytest.mark.parametrize(
+    ("argv", "needles"),
+    [
+        (["--effects", "yaw:stiction"], ["--effects", "unknown effect 'stiction'", "coulomb_friction"]),
+        (["--effects", "roll:deadband"], ["--effects", "unknown axis 'roll'", "pitch, yaw"]),
+        (["--effects", "deadband"], ["--effects", "AXIS:EFFECT"]),
+        (["--model-file", "MODEL"], ["m.json", "unknown effect 'spring'"]),
+        (["--effects", "yaw:coulomb_friction", "--prior", "F_c_yaw=normal:0:0.01"],
+         ["F_c_yaw", "outside its support", "halfnormal"]),
+        (["--effects", "yaw:coulomb_friction", "--fix", "F_c_yaw=-0.01"], ["F_c_yaw", ">= 0"]),
+        (["--prior", "F_c_yaw=halfnormal:0.01"], ["unknown name 'F_c_yaw'"]),
+        (["--prior", "m=lognormal:-1:1"], ["m", "median > 0"]),
+        (["--effects", "yaw:deadband", "--model-file", "MODEL"], ["one of them"]),
+    ],
+    ids=["effect", "axis", "form", "model-file", "prior-support", "fix-support", "prior-name",
+         "prior-value", "both"],
+)  # fmt: skip
+def test_bad_models_and_priors_are_one_line(tmp_path, capsys, small_record, argv, needles):
+    model_file = tmp_path / "m.json"
+    model_file.write_text('{"effects": ["yaw:spring"]}')
+    argv = [str(model_file) if a == "MODEL" else a for a in argv]
+    code, stdout, err = run(capsys, "sample", "--data", str(small_record), *argv,
+                            "--out", str(tmp_path / "o"))  # fmt: skip
+    assert code == 2
+    assert_one_line_error(err, *needles)

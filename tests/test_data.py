@@ -1,4 +1,5 @@
-"""Tests of heli_uq.data: CSV reading/writing, windows, decimation, loaders, synthesis."""
+"""Tests of heli_uq.data (CSV reading/writing, windows, decimation, loaders) and of the
+synthetic records of heli_uq.simulate."""
 
 from __future__ import annotations
 
@@ -16,17 +17,19 @@ from heli_uq.data import (
     EXPERIMENTAL_SHA256,
     EXPERIMENTAL_URL,
     HEADER,
-    STEP_HOLD,
-    STEP_RANGES,
-    SYNTHETIC_PARAMS,
     Experiment,
     load_data,
     load_experimental,
     parse_window,
     read_record,
-    synthetic_experiment,
 )
 from heli_uq.errors import DataFormatError, ParameterError
+from heli_uq.simulate.synthetic import (
+    STEP_HOLD,
+    STEP_RANGES,
+    SYNTHETIC_PARAMS,
+    synthetic_experiment,
+)
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 REAL_DIR = Path(os.environ.get(DATA_ENV_VAR) or REPO_ROOT.parent / "shared" / "data")

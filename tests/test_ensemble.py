@@ -1,15 +1,17 @@
 """emcee on the model's posterior: shapes, recovery of the truth, reproducibility,
-non-finite log densities, chunked resume and option checks (heli_uq.ensemble)."""
+non-finite log densities, chunked resume and option checks (heli_uq.inference.emcee_sampler)."""
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from jax.flatten_util import ravel_pytree
 
-from heli_uq import ensemble
-from heli_uq.data import SYNTHETIC_PARAMS
-from heli_uq.ensemble import run_emcee
 from heli_uq.errors import ParameterError
+from heli_uq.inference import emcee_sampler as ensemble
+from heli_uq.inference import run_emcee
+from heli_uq.inference.checkpoint import Checkpoint
+from heli_uq.inference.density import coordinate_names
+from heli_uq.simulate import SYNTHETIC_PARAMS
 
 NOISE_STD = 0.003  # rad, the truth of sigma
 #: The posterior mean of an identified quantity lies within this many posterior sd of the truth.
@@ -22,7 +24,8 @@ LP_RTOL = 1e-9
 MAIN = dict(ensembles=2, steps=400, chunk=200, seed=0)
 #: Small runs for reproducibility and resume (3 chunks per ensemble).
 SMALL = dict(ensembles=2, steps=120, chunk=40, burn=40, thin=2, seed=5)
-UNCONSTRAINED_SITES = ("omega_psi0", "omega_theta0", "psi0", "scale_noise", "sigma", "theta0", "z")
+UNCONSTRAINED_SITES = ("omega_psi0", "omega_theta0", "psi0", "scale_noise", "sigma_psi",
+                       "sigma_theta", "theta0", "z")  # fmt: skip
 
 
 def gravity_ratio(p):
@@ -64,7 +67,8 @@ def assert_same_run(a, b):
 def unconstrained(samples, index):
     """The flat unconstrained vector of draw ``index`` (chain, draw), as numpyro ravels it."""
     sites = {k: samples[k][index] for k in UNCONSTRAINED_SITES}
-    sites["sigma"] = np.log(sites["sigma"])
+    for k in ("sigma_psi", "sigma_theta"):
+        sites[k] = np.log(sites[k])
     return ravel_pytree({k: jnp.asarray(v) for k, v in sites.items()})[0]
 
 
@@ -72,7 +76,7 @@ def test_shapes_sites_and_info(main_run, problem, start):
     walkers = 2 * start.density.dim + 2
     burn = MAIN["steps"] // 2
     draws = (MAIN["steps"] - burn) * walkers
-    expected = set(UNCONSTRAINED_SITES) | set(problem.coords.free) | {"log_J_pitch"}
+    expected = set(UNCONSTRAINED_SITES) | set(problem.coords.free) | {"log_J_pitch", "sigma"}
     assert set(main_run.samples) == expected
     for k, v in main_run.samples.items():
         assert v.shape[:2] == (MAIN["ensembles"], draws), k
@@ -146,16 +150,16 @@ def test_default_start_is_prepare_start(problem, start, tmp_path, monkeypatch):
 
 
 def test_nan_log_density_is_a_rejection(problem, start, tmp_path, monkeypatch):
-    names = ensemble.coordinate_names(start.density)
+    names = coordinate_names(start.density)
     i = names.index("psi0")
     cut = float(start.x_map[i])
-    log_post, constrain = ensemble._batched(start.density)
+    log_post = ensemble._batched_log_post(start.density.potential)
 
     def log_post_with_nan(x):  # NaN on half of the posterior: psi0 above its MAP value
         x = np.asarray(x)
         return np.where(x[:, i] > cut, np.nan, np.asarray(log_post(x)))
 
-    monkeypatch.setattr(ensemble, "_batched", lambda density: (log_post_with_nan, constrain))
+    monkeypatch.setattr(ensemble, "_batched_log_post", lambda potential: log_post_with_nan)
     above = np.array(start.x_map, dtype=float)
     above[i] += 0.01
     assert np.isnan(log_post_with_nan(above[None]))[0]
@@ -172,19 +176,19 @@ def test_nan_log_density_is_a_rejection(problem, start, tmp_path, monkeypatch):
 
 def test_resume_after_interrupt(small_run, problem, start, tmp_path, monkeypatch):
     saved = []
-    real_save = ensemble._save_chunk
+    real_save = Checkpoint.save
     per_ensemble = SMALL["steps"] // SMALL["chunk"]
 
-    def save_then_interrupt(*args):
-        real_save(*args)
-        saved.append(args[1:3])
+    def save_then_interrupt(self, *args):
+        real_save(self, *args)
+        saved.append(args[:2])
         if len(saved) == per_ensemble + 1:  # ensemble 0 done, first chunk of ensemble 1
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(ensemble, "_save_chunk", save_then_interrupt)
+    monkeypatch.setattr(Checkpoint, "save", save_then_interrupt)
     with pytest.raises(KeyboardInterrupt):
         run_emcee(problem, tmp_path, start=start, progress=False, **SMALL)
-    monkeypatch.setattr(ensemble, "_save_chunk", real_save)
+    monkeypatch.setattr(Checkpoint, "save", real_save)
     files = sorted(p.name for p in (tmp_path / ensemble.CHUNK_DIR).glob("ensemble_*.pkl"))
     assert len(files) == per_ensemble + 1
     resumed = run_emcee(problem, tmp_path, start=start, progress=False, resume=True, **SMALL)
@@ -207,9 +211,9 @@ def test_resume_with_other_settings_is_refused(problem, start, tmp_path):
 
 
 @pytest.mark.parametrize("option, message", [
-    ({"steps": 0}, "--steps"), ({"ensembles": 0}, "--ensembles"), ({"thin": 0}, "--thin"),
-    ({"chunk": -1}, "--chunk"), ({"walkers": 0}, "--walkers"), ({"steps": 2.5}, "--steps"),
-    ({"burn": 100, "steps": 100}, "--burn"), ({"burn": -1}, "--burn"),
+    ({"steps": 0}, "^steps"), ({"ensembles": 0}, "^ensembles"), ({"thin": 0}, "^thin"),
+    ({"chunk": -1}, "^chunk"), ({"walkers": 0}, "^walkers"), ({"steps": 2.5}, "^steps"),
+    ({"burn": 100, "steps": 100}, "^burn"), ({"burn": -1}, "^burn"),
     ({"walkers": 5}, "at least 2 \\* dimension"),
 ])  # fmt: skip
 def test_bad_options(problem, start, tmp_path, option, message):

@@ -8,18 +8,17 @@ import numpy as np
 import pytest
 
 from heli_uq.cli import main
-from heli_uq.data import synthetic_experiment
-from heli_uq.fisher import WhitenedResiduals, fisher_information, fit_likelihood
-from heli_uq.identifiability import contraction, posterior_draws, profile_coordinates
-from heli_uq.params import PARAM_NAMES, TABLE1
-from heli_uq.profiles import THRESHOLD_95
-from heli_uq.sensitivity import (
+from heli_uq.identifiability.fisher import WhitenedResiduals, fisher_information, fit_likelihood
+from heli_uq.identifiability.profiles import THRESHOLD_95
+from heli_uq.identifiability.report import contraction, draws_in_w, profile_coordinates
+from heli_uq.identifiability.structural import (
     ParameterVector,
     analytic_null_directions,
     random_points,
     structural_analysis,
 )
-from heli_uq.simulate import simulate
+from heli_uq.model import TABLE1, HeliModel
+from heli_uq.simulate import simulate, synthetic_experiment
 
 #: Invariances are exact in exact arithmetic: simulations along them agree to round-off.
 INVARIANCE_TOL = 1e-10
@@ -30,7 +29,8 @@ HESSIAN_RTOL = 1e-6
 #: Exact contraction along a null direction with an isotropic prior on its coordinates.
 NULL_CONTRACTION_TOL = 1e-6
 
-FREE_ALL = tuple(n for n in PARAM_NAMES if n != "g")
+PAPER = HeliModel()
+FREE_ALL = tuple(n for n in TABLE1 if n != "g")
 FREE_H0 = tuple(n for n in FREE_ALL if n != "h")
 
 
@@ -68,7 +68,7 @@ def test_rc_m_jbc_trade_is_invisible_only_when_h_is_zero(record):
 
 
 def test_structural_rank_with_h_free_is_one_short_by_the_common_scaling(record):
-    pv = ParameterVector(FREE_ALL, dict(TABLE1, h=0.004))
+    pv = ParameterVector(PAPER, FREE_ALL, dict(TABLE1, h=0.004))
     w = _w(pv, pv.base, record)
     pts = random_points(pv, w, record.u, record.dt, 3, seed=1)
     st = structural_analysis(pv, pts, record.u, record.dt)
@@ -87,7 +87,7 @@ def test_structural_rank_with_h_free_is_one_short_by_the_common_scaling(record):
 
 
 def test_structural_null_space_with_h_fixed_at_zero_is_two_dimensional(record):
-    pv = ParameterVector(FREE_H0, dict(TABLE1, h=0.0))
+    pv = ParameterVector(PAPER, FREE_H0, dict(TABLE1, h=0.0))
     w = _w(pv, pv.base, record)
     pts = random_points(pv, w, record.u, record.dt, 3, seed=2)
     st = structural_analysis(pv, pts, record.u, record.dt)
@@ -104,7 +104,7 @@ def test_structural_null_space_with_h_fixed_at_zero_is_two_dimensional(record):
 
 def test_fisher_information_equals_hessian_at_zero_residual():
     rec = synthetic_experiment(duration=2.0, seed=7, noise_std=(0.0, 0.0))
-    pv = ParameterVector(("J_s", "K_theta_theta", "K_psi_psi", "D_theta"), dict(TABLE1),
+    pv = ParameterVector(PAPER, ("J_s", "K_theta_theta", "K_psi_psi", "D_theta"), dict(TABLE1),
                          include_x0=False)  # fmt: skip
     res = WhitenedResiduals(pv, rec.u, rec.y, rec.dt, np.array([0.01, 0.02]),
                             np.array([0.5, 0.8]), x0=np.array([-0.5, 0.0, 0.0, 0.0]))  # fmt: skip
@@ -115,11 +115,12 @@ def test_fisher_information_equals_hessian_at_zero_residual():
     assert np.linalg.norm(f - hess) / np.linalg.norm(hess) < HESSIAN_RTOL
 
 
+@pytest.mark.slow
 def test_profiles_classify_identifiable_practical_and_structural():
     rec = synthetic_experiment(duration=2.0, seed=3, noise_std=(0.05, 0.05))
     x0 = np.array([-0.5, 0.0, 0.0, 0.0])
     # J_s: weak on a 2 s record with 0.05 rad noise -> bounded on one side only.
-    pv = ParameterVector(("J_s", "K_theta_theta", "D_theta"), dict(TABLE1), include_x0=False)
+    pv = ParameterVector(PAPER, ("J_s", "K_theta_theta", "D_theta"), dict(TABLE1), include_x0=False)
     fit = fit_likelihood(pv, rec.u, rec.y, rec.dt, [pv.from_model(TABLE1)], error="iid", x0=x0)
     prof = {p.name: p for p in profile_coordinates(pv, fit, prior_mean=pv.from_model(TABLE1),
                                                     prior_sd=np.full(pv.dim, 2.0))}  # fmt: skip
@@ -133,7 +134,7 @@ def test_profiles_classify_identifiable_practical_and_structural():
     # With r_c fixed, the scaled group has exactly one null direction: flat profiles.
     free = ("m", "J_bc", "J_s", "K_theta_theta", "K_theta_psi", "K_psi_theta", "K_psi_psi",
             "D_theta", "D_psi")  # fmt: skip
-    pv2 = ParameterVector(free, dict(TABLE1), include_x0=False)
+    pv2 = ParameterVector(PAPER, free, dict(TABLE1), include_x0=False)
     fit2 = fit_likelihood(pv2, rec.u, rec.y, rec.dt, [pv2.from_model(TABLE1)], error="iid", x0=x0)
     st = structural_analysis(pv2, [fit2.w], rec.u, rec.dt, x0=x0)
     prof2 = profile_coordinates(pv2, fit2, prior_mean=pv2.from_model(TABLE1),
@@ -145,7 +146,7 @@ def test_profiles_classify_identifiable_practical_and_structural():
 def test_contraction_along_a_null_direction_is_zero_and_reads_a_posterior(tmp_path, record):
     import arviz as az
 
-    pv = ParameterVector(FREE_ALL, dict(TABLE1, h=0.004))
+    pv = ParameterVector(PAPER, FREE_ALL, dict(TABLE1, h=0.004))
     w = _w(pv, pv.base, record)
     res = WhitenedResiduals(pv, record.u, record.y, record.dt, np.array([0.005, 0.005]))
     fim = fisher_information(res, w)
@@ -161,12 +162,12 @@ def test_contraction_along_a_null_direction_is_zero_and_reads_a_posterior(tmp_pa
     rng = np.random.default_rng(0)
     draws = {n: rng.normal(size=(2, 500)) * 0.1 + (0.0 if n == "h" else 1.0) for n in pv.names}
     draws = {n: (np.exp(d) if pv.is_log(n) else d) for n, d in draws.items()}
-    az.from_dict(posterior=draws).to_netcdf(tmp_path / "posterior.nc")
-    got = posterior_draws(tmp_path / "posterior.nc", pv)
+    got = draws_in_w(az.from_dict(posterior=draws).posterior, pv)
     assert got.shape == (1000, pv.dim)
     assert np.allclose(np.std(got, axis=0), 0.1, rtol=0.1)
 
 
+@pytest.mark.slow
 def test_cli_identifiability_writes_report(tmp_path, capsys):
     rec = synthetic_experiment(duration=2.0, seed=3, noise_std=(0.02, 0.02))
     csv = rec.to_csv(tmp_path / "rec.csv")

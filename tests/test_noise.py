@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
-from heli_uq.noise import ar1_noise, pointwise_log_likelihood
+from heli_uq.probability.likelihood import pointwise_log_likelihood
+from heli_uq.probability.noise import ar1_noise
 
 LOGLIK_ATOL = 1e-9
 #: Sample statistics of 200k AR(1) draws: sd and lag-1 correlation within these bounds.

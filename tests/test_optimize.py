@@ -3,7 +3,8 @@
 import jax.numpy as jnp
 import numpy as np
 
-from heli_uq.optimize import LogDensity, newton_polish
+from heli_uq.inference.density import LogDensity
+from heli_uq.inference.map import newton_polish
 
 #: Distance to the known optimum after the polish, relative to the smallest posterior sd.
 OPTIMUM_TOL = 1e-6
@@ -21,7 +22,7 @@ def test_newton_polish_reaches_the_optimum_of_an_ill_conditioned_density():
         d = x - m
         return 0.5 * d @ jnp.asarray(a) @ d + 0.25 * jnp.sum(d**4)
 
-    density = LogDensity(potential, None, None, np.zeros(5), {})
+    density = LogDensity(None, potential, None, np.zeros(5))
     start = m + q[:, 0] * 0.3 + q[:, -1] * 1e-3  # off along the weakest and stiffest axes
     x, value, grad_max, decrement, steps = newton_polish(density, start)
     smallest_sd = 1.0 / np.sqrt(1e9)

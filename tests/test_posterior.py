@@ -9,15 +9,14 @@ import numpy as np
 import pytest
 from conftest import SYNTHETIC_NOISE
 
-from heli_uq import inference
 from heli_uq.cli import main
-from heli_uq.data import SYNTHETIC_PARAMS, synthetic_experiment
-from heli_uq.diagnostics import summarize
-from heli_uq.ensemble import run_emcee
 from heli_uq.errors import ParameterError
-from heli_uq.inference import run_nuts
-from heli_uq.model import make_problem
-from heli_uq.results import to_inference_data
+from heli_uq.inference import run_emcee, run_nuts
+from heli_uq.inference.checkpoint import Checkpoint
+from heli_uq.inference.density import constrain_draws, log_density_setup
+from heli_uq.output import summarize, to_inference_data
+from heli_uq.probability import log_likelihood, make_problem
+from heli_uq.simulate import SYNTHETIC_PARAMS, synthetic_experiment
 
 NUTS = dict(chains=2, warmup=150, draws=150, chunk=75, seed=0, progress=False, target_accept=0.95)
 #: Sampler health on the shared record.  It is short (4 s) with 3 mrad noise and its
@@ -66,21 +65,34 @@ def test_nuts_and_emcee_agree(nuts_run, synthetic_problem, synthetic_start, tmp_
     assert abs(a.mean() - b.mean()) < AGREEMENT_SD * a.std()
 
 
+#: The stored pointwise log likelihood sums to the model's log likelihood of the same draw.
+LOGLIK_SUM_RTOL = 1e-10
+
+
 def test_inference_data_groups_and_dims(nuts_run, synthetic_problem):
-    idata = to_inference_data(synthetic_problem, nuts_run, prior_draws=50, pp_draws_per_chain=20)
+    idata = to_inference_data(nuts_run, prior_draws=50, pp_draws=40)
     for group in ("posterior", "sample_stats", "log_likelihood", "prior",
                   "posterior_predictive", "observed_data", "constant_data"):  # fmt: skip
         assert group in idata.groups(), group
     n = synthetic_problem.n_train
     assert idata.posterior["sigma"].dims == ("chain", "draw", "output")
     assert list(idata.posterior["output"].values) == ["theta", "psi"]
-    assert idata.log_likelihood["y"].shape == (2, NUTS["draws"], n, 2)
-    np.testing.assert_allclose(idata.log_likelihood["time_train"].values, synthetic_problem.t[:n])
+    assert idata.log_likelihood["y"].shape == (2, NUTS["draws"], n, 2)  # block of 1 sample
+    np.testing.assert_allclose(idata.log_likelihood["time_block"].values, synthetic_problem.t[:n])
     assert idata.posterior_predictive["y_pred"].dims == ("chain", "draw", "time", "output")
     assert "m" in idata.posterior and "g" not in idata.posterior  # g is fixed
-    # pointwise log likelihood sums to the model's log likelihood: check one draw
-    ll = float(idata.log_likelihood["y"].isel(chain=0, draw=0).sum())
-    assert np.isfinite(ll)
+    # the pointwise log likelihood sums to the model's log likelihood of that draw, which we
+    # recompute here from the draw's parameters through the problem's own simulation
+    post = idata.posterior
+    for chain, draw in ((0, 0), (1, 77)):
+        stored = float(idata.log_likelihood["y"].sel(chain=chain, draw=draw).sum())
+        params = {k: float(post[k].sel(chain=chain, draw=draw)) for k in synthetic_problem.coords.free}
+        x0 = [float(post[k].sel(chain=chain, draw=draw)) for k in
+              ("theta0", "psi0", "omega_theta0", "omega_psi0")]  # fmt: skip
+        sim = synthetic_problem.solve(params, jnp.asarray(x0), n).ys[:, :2]
+        sigma = jnp.asarray(post["sigma"].sel(chain=chain, draw=draw).values)
+        direct = float(log_likelihood(sim, jnp.asarray(synthetic_problem.y[:n]), sigma))
+        assert abs(stored - direct) <= LOGLIK_SUM_RTOL * abs(direct), (stored, direct)
     summary = summarize(idata)
     for key in ("rhat_max", "ess_bulk_min", "ess_tail_min", "divergences", "rmse", "coverage90"):
         assert key in summary
@@ -93,33 +105,38 @@ def test_failed_solve_is_a_rejected_proposal(synthetic_problem, synthetic_start)
     density = synthetic_start.density
     sites = density.unravel(jnp.asarray(synthetic_start.x_map))
     bad = dict(sites)
-    bad["z"] = sites["z"].at[5].set(40.0)  # K_theta_theta / M11 = e^40: the model blows up
+    i = synthetic_problem.coords.sampled_names.index("log_K_theta_theta_ratio")
+    bad["z"] = sites["z"].at[i].set(40.0)  # K_theta_theta / M11 = e^40: the model blows up
     x_bad = jax.flatten_util.ravel_pytree(bad)[0]
     value = density.potential(x_bad)
     assert np.isposinf(float(value))
     assert np.isfinite(float(density.potential(jnp.asarray(synthetic_start.x_map))))
 
 
+@pytest.mark.slow
 def test_resume_gives_the_same_draws(synthetic_problem, synthetic_start, tmp_path, monkeypatch):
     kw = dict(chains=1, warmup=30, draws=40, chunk=20, seed=3, progress=False,
               start=synthetic_start)  # fmt: skip
     full = run_nuts(synthetic_problem, tmp_path / "full", **kw)
     calls = {"n": 0}
-    original = inference._save_chunk
+    original = Checkpoint.save
 
-    def interrupt(*args, **kwargs):
+    def interrupt(self, *args, **kwargs):
         calls["n"] += 1
-        original(*args, **kwargs)
+        original(self, *args, **kwargs)
         if calls["n"] == 1:
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(inference, "_save_chunk", interrupt)
+    monkeypatch.setattr(Checkpoint, "save", interrupt)
     with pytest.raises(KeyboardInterrupt):
         run_nuts(synthetic_problem, tmp_path / "cut", **kw)
-    monkeypatch.setattr(inference, "_save_chunk", original)
+    monkeypatch.setattr(Checkpoint, "save", original)
     resumed = run_nuts(synthetic_problem, tmp_path / "cut", resume=True, **kw)
     for k in full.samples:
         np.testing.assert_array_equal(full.samples[k], resumed.samples[k], err_msg=k)
+    # other settings: refused, naming the difference
+    with pytest.raises(ParameterError, match="seed"):
+        run_nuts(synthetic_problem, tmp_path / "cut", resume=True, **dict(kw, seed=4))
 
 
 def test_overlapping_windows_and_bad_draws_are_clear_errors(synthetic_problem, tmp_path):
@@ -130,6 +147,7 @@ def test_overlapping_windows_and_bad_draws_are_clear_errors(synthetic_problem, t
         run_nuts(synthetic_problem, tmp_path, draws=0)
 
 
+@pytest.mark.slow
 def test_cli_sample_end_to_end(tmp_path, capsys):
     record = synthetic_experiment(duration=2.0, seed=4, noise_std=(0.003, 0.003))
     csv = tmp_path / "rec.csv"
@@ -161,19 +179,18 @@ def test_ar1_model_uses_the_correlation_time(tmp_path):
     """With AR(1) errors the model samples tau and reports rho = exp(-dt / tau)."""
     record = synthetic_experiment(duration=1.0, seed=5, noise_std=(0.003, 0.003))
     problem = make_problem(record, error="ar1")
-    from heli_uq.optimize import default_init_values, log_density_setup
-
-    density = log_density_setup(problem, default_init_values(problem))
-    sites = density.constrain(density.unravel(jnp.asarray(density.x_init)))
+    density = log_density_setup(problem)
+    sites = {k: v[0] for k, v in constrain_draws(density, density.x_init[None]).items()}
     np.testing.assert_allclose(sites["rho"], np.exp(-record.dt / np.asarray(sites["tau"])),
                                rtol=1e-12)  # fmt: skip
     assert np.isfinite(float(density.potential(jnp.asarray(density.x_init))))
 
 
+@pytest.mark.slow
 def test_cli_run_main_job_end_to_end(tmp_path, capsys):
     """``heli-uq run`` on a record file: figures, simulations and the posterior stage with the
     documented train/test split (first 91/131 of the record for training)."""
-    from heli_uq.cli import RUN_TRAIN_FRACTION
+    from heli_uq.cli.run import RUN_TRAIN_FRACTION
 
     record = synthetic_experiment(duration=2.0, seed=5, noise_std=(0.003, 0.003))
     csv = tmp_path / "rec.csv"

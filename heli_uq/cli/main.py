@@ -1,0 +1,92 @@
+"""Command line interface ``heli-uq`` (also ``python -m heli_uq.cli``).
+
+Subcommands (one module each)::
+
+    heli-uq run [--data experimental|synthetic|FILE.csv] [--effects ...] [--out DIR]
+    heli-uq simulate --inputs table3|experiment|FILE.csv [--effects ...] [--params P.json] ...
+    heli-uq data show experimental|FILE.csv [--window a:b] --out DIR
+    heli-uq sample --data experimental|FILE.csv [--effects ...] [--train a:b --test c:d] ...
+    heli-uq identifiability --data experimental|FILE.csv [--effects ...] [--free NAMES] ...
+
+Adding a subcommand is one module with ``add_parser(subparsers)`` (building its parser,
+setting ``handler=<function(args) -> int>`` and returning the parser) plus one entry in
+:data:`_COMMANDS`.
+
+Exit codes: 0 success, 1 the simulation failed (diverged), 2 bad input or usage (any
+:class:`~heli_uq.errors.HeliUQError`, an output that cannot be written, or an argparse
+usage error).  Errors are reported as one line ``heli-uq: error: <message>`` on stderr;
+a message from the library that starts with an argument name (``effects: ...``) is shown
+with the option that set it (``--effects: ...``).
+
+JAX: the commands that sample set one XLA host device per chain
+(``numpyro.set_host_device_count``) before JAX starts, so chains run in parallel.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+
+from heli_uq.cli import data, identifiability, run, sample, simulate
+from heli_uq.cli.options import Formatter
+from heli_uq.errors import HeliUQError
+
+__all__ = ["main", "build_parser"]
+
+PROG = "heli-uq"
+#: Subcommand modules, in the order shown by ``--help``.
+_COMMANDS = (run, simulate, data, sample, identifiability)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``heli-uq`` argument parser with all subcommands."""
+    parser, _ = _build()
+    return parser
+
+
+def _build():
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Bayesian uncertainty quantification of a 2-DOF laboratory helicopter.\n"
+                    "States (theta, psi, omega_theta, omega_psi) in rad and rad/s; voltages "
+                    "in V;\nparameters in SI units (paper Table 2).",
+        epilog="Run 'heli-uq COMMAND --help' for the options of a command.",
+        formatter_class=Formatter,
+    )  # fmt: skip
+    sub = parser.add_subparsers(title="commands", dest="command", required=True, metavar="COMMAND")
+    options = {}
+    for module in _COMMANDS:
+        leaf = module.add_parser(sub)
+        options[leaf.get_default("handler")] = {s for a in leaf._actions for s in a.option_strings}
+    return parser, options
+
+
+def _with_option(message: str, options: set) -> str:
+    """``"effects: ..."`` -> ``"--effects: ..."`` when ``--effects`` is an option here."""
+    match = re.match(r"([a-z][a-z0-9_]*)([: ])", message)
+    if match:
+        flag = "--" + match.group(1).replace("_", "-")
+        if flag in options:
+            return flag + message[len(match.group(1)):]
+    return message
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``heli-uq`` with *argv* (default ``sys.argv[1:]``); return the exit status."""
+    parser, options = _build()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.handler(args))
+    except (HeliUQError, OSError) as exc:
+        if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+            message = f"{exc.filename}: {exc.strerror}"  # e.g. an --out that is a file
+        else:
+            message = " ".join(str(exc).split()) or type(exc).__name__
+            message = _with_option(message, options.get(args.handler, set()))
+        print(f"{PROG}: error: {message}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

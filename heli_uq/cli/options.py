@@ -1,0 +1,110 @@
+"""Options shared by several ``heli-uq`` commands: the model, the priors, common checks.
+
+Core code raises errors that name its arguments (``effects: unknown effect ...``);
+:func:`heli_uq.cli.main.main` turns the leading argument name into the option that set
+it (``--effects: ...``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+from heli_uq.errors import ParameterError
+
+__all__ = ["Formatter", "add_model_options", "model_from_args", "add_prior_options",
+           "priors_from_args", "check_positive", "out_dir", "positive_float", "EFFECTS_HELP"]  # fmt: skip
+
+
+class Formatter(argparse.RawDescriptionHelpFormatter):
+    """Keep the line breaks of descriptions/epilogs (defaults are spelled out in each help)."""
+
+
+def _effects_help() -> str:
+    from heli_uq.model.terms import EFFECTS
+
+    lines = ["effects (AXIS:EFFECT, axes pitch and yaw; parameters named NAME_AXIS, e.g. F_c_yaw):"]
+    for name, cls in EFFECTS.items():
+        pars = ", ".join(f"{p.name} [{p.unit}]" for p in cls()._declare())
+        lines.append(f"  {name:18s} {pars}")
+    return "\n".join(lines)
+
+
+EFFECTS_HELP = _effects_help()
+
+
+def add_model_options(p) -> None:
+    """``--effects`` and ``--model-file``."""
+    p.add_argument("--effects", metavar="AXIS:EFFECT,...", default=None,
+                   help="named effects added to the paper's model, e.g. "
+                        "yaw:coulomb_friction,yaw:torque_offset (default: none; see 'effects' "
+                        "below)")
+    p.add_argument("--model-file", metavar="MODEL.json", default=None,
+                   help='the model as JSON, e.g. {"effects": ["yaw:deadband", {"effect": '
+                        '"coulomb_friction", "axis": "yaw", "omega_s": 0.001}]}')
+
+
+def model_from_args(args):
+    """The :class:`~heli_uq.model.HeliModel` of ``--effects`` / ``--model-file``."""
+    from heli_uq.model.spec import load_model_file, parse_effects
+
+    if args.effects is not None and args.model_file is not None:
+        raise ParameterError("--effects and --model-file: give one of them, not both")
+    if args.model_file is not None:
+        return load_model_file(args.model_file)
+    return parse_effects(args.effects, where="--effects")
+
+
+def add_prior_options(p) -> None:
+    """``--priors``, ``--prior`` and ``--fix``."""
+    p.add_argument("--priors", metavar="FILE.json", default=None,
+                   help='prior overrides file, e.g. {"m": {"lognormal": [0.5, 1.0]}, "h": 0, '
+                        '"F_c_yaw": {"halfnormal": [0.01]}}')
+    p.add_argument("--prior", action="append", metavar="NAME=KIND:A:B",
+                   help="override one prior (repeatable): lognormal:MEDIAN:SIGMA_LOG, "
+                        "halfnormal:SCALE, normal:MEAN:SD, uniform:LOW:HIGH; names are model "
+                        "parameters, theta0, psi0, omega_theta0, omega_psi0, sigma_theta, "
+                        "sigma_psi, tau_theta, tau_psi")
+    p.add_argument("--fix", action="append", metavar="NAME=VALUE",
+                   help="fix a parameter (repeatable), e.g. --fix h=0")
+
+
+def priors_from_args(args, model):
+    """The :class:`~heli_uq.probability.PriorSet` of the model with the options applied."""
+    from heli_uq.probability.priors import PriorSet, load_priors_json, parse_prior_option
+
+    priors = PriorSet.default(model)
+    if args.priors is not None:
+        priors = priors.updated(model, load_priors_json(args.priors), where=args.priors)
+    changes = dict(parse_prior_option(text, option="--prior") for text in (args.prior or []))
+    for text in args.fix or []:
+        name, prior = parse_prior_option(text, option="--fix")
+        if prior.kind != "fixed":
+            raise ParameterError(f"--fix: expected NAME=VALUE, found {text!r}")
+        changes[name] = prior
+    return priors.updated(model, changes, where="--prior/--fix")
+
+
+def check_positive(args, names) -> None:
+    """One clear error for the first of the integer options ``names`` that is not > 0."""
+    for name in names:
+        if getattr(args, name) <= 0:
+            raise ParameterError(f"--{name}: expected a positive integer, found {getattr(args, name)}")
+
+
+def out_dir(path: str) -> Path:
+    """Create the output directory if missing (OSError propagates: exit 2)."""
+    out = Path(path)
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def positive_float(text: str, option: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ParameterError(f"{option}: expected a number of seconds, found {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise ParameterError(f"{option}: expected a finite number > 0, found {text!r}")
+    return value

@@ -1,0 +1,29 @@
+"""Inference: the log density, least squares and MAP, the Laplace approximation, NUTS and
+emcee, with chunked resumable output.
+
+Layer 5 (imports data, model, simulate and probability).
+"""
+
+from heli_uq.inference.checkpoint import Checkpoint as Checkpoint
+from heli_uq.inference.density import LogDensity as LogDensity
+from heli_uq.inference.density import constrain_draws as constrain_draws
+from heli_uq.inference.density import log_density_setup as log_density_setup
+from heli_uq.inference.emcee_sampler import run_emcee as run_emcee
+from heli_uq.inference.levenberg import masked_least_squares as masked_least_squares
+from heli_uq.inference.map import MapResult as MapResult
+from heli_uq.inference.map import find_map as find_map
+from heli_uq.inference.map import laplace as laplace
+from heli_uq.inference.nuts import TARGET_ACCEPT as TARGET_ACCEPT
+from heli_uq.inference.nuts import SamplerRun as SamplerRun
+from heli_uq.inference.nuts import run_nuts as run_nuts
+from heli_uq.inference.start import Start as Start
+from heli_uq.inference.start import least_squares_fit as least_squares_fit
+from heli_uq.inference.start import prepare_start as prepare_start
+from heli_uq.inference.start import start_parameters as start_parameters
+
+SAMPLERS = ("nuts", "emcee")
+
+__all__ = ["Checkpoint", "LogDensity", "constrain_draws", "log_density_setup", "run_emcee",
+           "masked_least_squares", "MapResult", "find_map", "laplace", "TARGET_ACCEPT",
+           "SamplerRun", "run_nuts", "Start", "least_squares_fit", "prepare_start",
+           "start_parameters", "SAMPLERS"]  # fmt: skip

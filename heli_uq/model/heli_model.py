@@ -1,0 +1,229 @@
+"""The helicopter model: mechanics + input maps + torque terms, and its parameter set.
+
+:class:`HeliModel` is an equinox module whose configuration is static (which terms, on
+which axes); parameter *values* are a dict ``{name: value}`` passed alongside, so one
+compiled simulator serves every parameter value a sampler proposes.  The model gathers
+the parameter declarations of its terms (:meth:`HeliModel.parameters`); every later
+stage iterates over them.
+
+The vector field is the pure function ``model(t, y, args)`` with
+``y = (theta, psi, omega_theta, omega_psi)`` [rad, rad, rad/s, rad/s] and
+``args = (p, u)``: parameter values and the held voltages (2,) [V].
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from heli_uq.errors import ParameterError
+from heli_uq.model.parameter import Parameter, check_value
+from heli_uq.model.terms.base import AbstractInputMap, AbstractTorque
+from heli_uq.model.terms.linear_torque import LinearTorque
+from heli_uq.model.terms.rigid_body import (
+    AbstractMechanics,
+    ClosedFormMechanics,
+    dl_dx,
+    mass_matrix,
+)
+
+__all__ = ["HeliModel", "momentum_vector_field"]
+
+
+class HeliModel(eqx.Module):
+    """Mechanics, input maps (applied to the voltages in order) and summed torque terms.
+
+    Parameters
+    ----------
+    mechanics : AbstractMechanics
+        Default :class:`~heli_uq.model.terms.ClosedFormMechanics`.
+    inputs : tuple of AbstractInputMap
+        E.g. ``(DeadBand("yaw"),)``.
+    torques : tuple of AbstractTorque
+        Default ``(LinearTorque(),)``, the paper's ``F = K u - D v``.
+
+    Raises
+    ------
+    ParameterError
+        If two terms declare the same parameter name (e.g. one effect twice on one axis).
+    """
+
+    mechanics: AbstractMechanics = ClosedFormMechanics()
+    inputs: tuple[AbstractInputMap, ...] = ()
+    torques: tuple[AbstractTorque, ...] = (LinearTorque(),)
+
+    def __check_init__(self):
+        seen = {}
+        for term in self.terms:
+            for par in term.parameters():
+                if par.name in seen:
+                    raise ParameterError(f"model: {term.label} and {seen[par.name]} both declare "
+                                     f"parameter {par.name!r}; use each effect once per axis")
+                seen[par.name] = term.label
+
+    # ----------------------------------------------------------- parameters
+    @property
+    def terms(self) -> tuple:
+        """All terms, in order: mechanics, input maps, torques."""
+        return (self.mechanics, *self.inputs, *self.torques)
+
+    def parameters(self) -> tuple[Parameter, ...]:
+        """Declarations of every parameter, gathered from the terms."""
+        return tuple(par for term in self.terms for par in term.parameters())
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(par.name for par in self.parameters())
+
+    def parameter(self, name: str) -> Parameter:
+        """The declaration of ``name``.
+
+        Raises
+        ------
+        ParameterError
+            Unknown name (the message lists the model's names).
+        """
+        for par in self.parameters():
+            if par.name == name:
+                return par
+        raise ParameterError(f"unknown parameter {name!r}; this model has {', '.join(self.names)}")
+
+    def defaults(self) -> dict[str, float]:
+        """``{name: default value}`` (Table 2 for the mechanics; "no effect" for effects)."""
+        return {par.name: float(par.default) for par in self.parameters()}
+
+    def start_values(self) -> dict[str, float]:
+        """``{name: first guess of a fit}`` (Table 1 for the mechanics and gains)."""
+        return {par.name: par.start_value() for par in self.parameters()}
+
+    def complete(self, values: Mapping | None = None, *, where: str = "parameters") -> dict:
+        """All parameters as a dict: ``values`` where given, defaults elsewhere.
+
+        Values may be jax tracers (no checks then); concrete numbers are checked against
+        each parameter's support.
+
+        Raises
+        ------
+        ParameterError
+            Unknown names, non-numbers or values outside a support.
+        """
+        values = dict(values or {})
+        unknown = sorted(set(values) - set(self.names))
+        if unknown:
+            raise ParameterError(f"{where}: unknown parameter name(s) "
+                                 f"{', '.join(map(repr, unknown))}; this model has "
+                                 f"{', '.join(self.names)}")  # fmt: skip
+        out = {}
+        for par in self.parameters():
+            if par.name not in values:
+                out[par.name] = jnp.asarray(par.default, dtype=jnp.float64)
+                continue
+            v = values[par.name]
+            if not isinstance(v, jax.core.Tracer) and np.ndim(v) == 0:
+                check_value(par, v, where)  # concrete scalars only; batches are not checked
+            out[par.name] = jnp.asarray(v, dtype=jnp.float64)
+        return out
+
+    @property
+    def scale_names(self) -> tuple[str, ...]:
+        """Parameters flagged ``scales_with_inertia``: they span the common-scale direction."""
+        return tuple(par.name for par in self.parameters() if par.scales_with_inertia)
+
+    # ------------------------------------------------------------- dynamics
+    def prepare(self, p):
+        """Parameter-only work, once per solve: ``(mechanics coefficients, p)``."""
+        return self.mechanics.prepare(p), p
+
+    def input_voltages(self, p, u):
+        """The voltages after every input map, a pair ``(u_theta, u_psi)`` [V]."""
+        u = (u[0], u[1])
+        for term in self.inputs:
+            u = term(p, u)
+        return u
+
+    def force(self, p, x, v, u):
+        """Generalized force ``(T_theta, T_psi)`` [N m] of all torque terms at mapped ``u``,
+        a pair of scalars (literal ``0.0`` components of a term are skipped)."""
+        total = [0.0, 0.0]
+        for term in self.torques:
+            for i, part in enumerate(term(p, x, v, u)):
+                if not (isinstance(part, float) and part == 0.0):
+                    total[i] = part if isinstance(total[i], float) else total[i] + part
+        return tuple(total)
+
+    def force_vector(self, p, x, v, u):
+        """:meth:`force` as an array of shape (2,) [N m]."""
+        return jnp.stack([jnp.asarray(f, dtype=jnp.float64) for f in self.force(p, x, v, u)])
+
+    def acceleration(self, prepared, x, v, u, sc=None):
+        """Generalized accelerations (2,) [rad/s^2]; ``u`` (2,) [V] before the input maps.
+
+        ``sc = (sin theta, cos theta)`` may be passed by a caller that already has them.
+        """
+        coeffs, p = prepared
+        force = self.force(p, x, v, self.input_voltages(p, u))
+        return self.mechanics.acceleration(coeffs, x, v, force, sc)
+
+    def __call__(self, t, y, args):
+        """Vector field ``dy/dt`` (4,) for ``args = (p, u)``."""
+        p, u = args
+        a = self.acceleration(self.prepare(p), y[:2], y[2:], u)
+        return jnp.concatenate([y[2:], a])
+
+    def stiffness(self, p, thetas=None) -> float:
+        """Largest rate [1/s] any term adds near rest (0 for the linear model).
+
+        ``thetas``: the pitch angles [rad] the yaw inertia is taken over (default all).
+        """
+        p = {k: float(v) for k, v in p.items()}
+        inertia = self.mechanics.inertia_bounds(p, thetas)
+        rates = [term.stiffness(p, inertia) for term in self.terms]
+        return max([0.0] + [r for r in rates if math.isfinite(r)])
+
+    # ---------------------------------------------------------- description
+    @property
+    def effects(self) -> tuple:
+        """The named effects of the model (input maps and torques beyond the linear one)."""
+        from heli_uq.model.terms.base import AbstractEffect
+
+        return tuple(t for t in self.terms if isinstance(t, AbstractEffect))
+
+    def describe(self) -> dict:
+        """JSON description: ``{"mechanics": ..., "effects": [{"effect", "axis", ...}]}``.
+
+        Read back by :func:`heli_uq.model.model_from_description`.
+        """
+        return {"mechanics": self.mechanics.kind,
+                "linear_torque": any(isinstance(t, LinearTorque) for t in self.torques),
+                "effects": [t.describe() for t in self.effects]}  # fmt: skip
+
+    @property
+    def label(self) -> str:
+        """Short text, e.g. ``"mechanistic + coulomb_friction(yaw)"``."""
+        return " + ".join(["mechanistic"] + [t.label for t in self.effects])
+
+
+def momentum_vector_field(t, z, args):
+    """Momentum (DAE) form, Sec. 2.6: ``dx/dt = v``, ``dp/dt = dL/dx + F``, ``p = M(x) v``.
+
+    The algebraic equation ``p = M(x) v`` is solved for ``v`` at every evaluation, so
+    the state is ``z = (theta, psi, p_theta, p_psi)`` [rad, rad, kg m^2/s, kg m^2/s].
+
+    Parameters
+    ----------
+    t : float
+        Time [s] (unused: the system is autonomous for held inputs).
+    z : array, shape (4,)
+    args : tuple
+        ``(model, p, u)``: a :class:`HeliModel`, parameter values and voltages (2,) [V].
+    """
+    model, p, u = args
+    x, mom = z[:2], z[2:]
+    v = jnp.linalg.solve(mass_matrix(p, x[0]), mom)
+    dp = dl_dx(p, x, v) + model.force_vector(p, x, v, model.input_voltages(p, u))
+    return jnp.concatenate([v, dp])

@@ -1,0 +1,123 @@
+"""Build a model from text: an effects list, a model file, or a stored description.
+
+* ``"yaw:coulomb_friction,yaw:torque_offset"`` (the CLI's ``--effects``), one
+  ``AXIS:EFFECT`` item per effect;
+* a model file (``--model-file model.json``) for scripts::
+
+      {"effects": ["yaw:coulomb_friction",
+                   {"effect": "deadband", "axis": "yaw"},
+                   {"effect": "coulomb_friction", "axis": "pitch", "omega_s": 0.001}],
+       "mechanics": "closed_form"}
+
+* :meth:`HeliModel.describe` output, stored with every result (``posterior.nc``
+  attributes, ``summary.json``), which :func:`model_from_description` reads back.
+
+Every error names the item, what was expected (the valid choices) and what was found.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+from heli_uq.errors import ParameterError
+from heli_uq.model.heli_model import HeliModel
+from heli_uq.model.parameter import AXES
+from heli_uq.model.terms import EFFECTS, ClosedFormMechanics, LagrangianMechanics, LinearTorque
+from heli_uq.model.terms.base import AbstractInputMap
+
+__all__ = ["parse_effects", "build_model", "model_from_description", "load_model_file"]
+
+_MECHANICS = {"closed_form": ClosedFormMechanics, "lagrangian": LagrangianMechanics}
+_FILE_KEYS = ("effects", "mechanics", "linear_torque")
+
+
+def _effect(item, where: str):
+    """One effect term from ``"axis:effect"`` or ``{"effect": ..., "axis": ..., options}``."""
+    if isinstance(item, str):
+        axis, sep, name = (s.strip() for s in item.partition(":"))
+        if not sep:
+            raise ParameterError(f"{where}: effect {item!r}: expected AXIS:EFFECT, e.g. "
+                                 f"yaw:coulomb_friction (axes: {', '.join(AXES)})")  # fmt: skip
+        options = {}
+    elif isinstance(item, dict):
+        options = dict(item)
+        name, axis = options.pop("effect", None), options.pop("axis", None)
+        if name is None or axis is None:
+            raise ParameterError(f"{where}: effect {item!r}: expected the keys 'effect' and 'axis'")
+    else:
+        raise ParameterError(f"{where}: effect {item!r}: expected 'AXIS:EFFECT' or an object")
+    if name not in EFFECTS:
+        raise ParameterError(f"{where}: unknown effect {name!r}; expected one of "
+                             f"{', '.join(EFFECTS)}")  # fmt: skip
+    if axis not in AXES:
+        raise ParameterError(f"{where}: effect {name!r}: unknown axis {axis!r}; expected one of "
+                             f"{', '.join(AXES)}")  # fmt: skip
+    cls = EFFECTS[name]
+    allowed = sorted(f for f in cls.__dataclass_fields__ if f != "axis")
+    bad = sorted(set(options) - set(allowed))
+    if bad:
+        raise ParameterError(f"{where}: effect {name!r}: unknown option(s) {', '.join(bad)}; "
+                             f"expected {', '.join(allowed) or 'none'}")  # fmt: skip
+    try:
+        return cls(axis=axis, **options)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"{where}: effect {name!r}: {exc}") from None
+
+
+def build_model(effects=(), *, mechanics: str = "closed_form", linear_torque: bool = True,
+                where: str = "effects") -> HeliModel:  # fmt: skip
+    """A :class:`HeliModel` with the paper's mechanics and linear torque plus ``effects``.
+
+    Parameters
+    ----------
+    effects : iterable
+        Items ``"axis:effect"`` or ``{"effect", "axis", options...}``.
+    mechanics : {"closed_form", "lagrangian"}
+    linear_torque : bool
+        Include ``F = K u - D v`` (default True).
+    """
+    if mechanics not in _MECHANICS:
+        raise ParameterError(f"{where}: unknown mechanics {mechanics!r}; expected one of "
+                             f"{', '.join(_MECHANICS)}")  # fmt: skip
+    terms = [_effect(item, where) for item in effects]
+    inputs = tuple(t for t in terms if isinstance(t, AbstractInputMap))
+    torques = tuple(t for t in terms if not isinstance(t, AbstractInputMap))
+    base = (LinearTorque(),) if linear_torque else ()
+    if not base + torques:
+        raise ParameterError(f"{where}: the model needs at least one torque term")
+    return HeliModel(_MECHANICS[mechanics](), inputs, base + torques)
+
+
+def parse_effects(text: str | None, *, where: str = "effects") -> HeliModel:
+    """The model of ``"yaw:coulomb_friction,yaw:torque_offset"`` (empty: the paper's model)."""
+    items = [s.strip() for s in (text or "").split(",") if s.strip()]
+    return build_model(items, where=where)
+
+
+def model_from_description(desc, *, where: str = "model description") -> HeliModel:
+    """The model of a :meth:`HeliModel.describe` dict (or its JSON text)."""
+    if isinstance(desc, str):
+        try:
+            desc = json.loads(desc)
+        except json.JSONDecodeError as exc:
+            raise ParameterError(f"{where}: invalid JSON ({exc.msg})") from None
+    if not isinstance(desc, dict):
+        raise ParameterError(f"{where}: expected a JSON object with keys {', '.join(_FILE_KEYS)}")
+    bad = sorted(set(desc) - set(_FILE_KEYS))
+    if bad:
+        raise ParameterError(f"{where}: unknown key(s) {', '.join(bad)}; expected "
+                             f"{', '.join(_FILE_KEYS)}")  # fmt: skip
+    effects = desc.get("effects", [])
+    if not isinstance(effects, list):
+        raise ParameterError(f"{where}: 'effects' must be a list, found {effects!r}")
+    return build_model(effects, mechanics=desc.get("mechanics", "closed_form"),
+                       linear_torque=bool(desc.get("linear_torque", True)), where=where)  # fmt: skip
+
+
+def load_model_file(path: str | os.PathLike) -> HeliModel:
+    """The model described by a JSON model file (module docstring)."""
+    from heli_uq.io import read_json_object
+
+    path = os.fspath(path)
+    return model_from_description(read_json_object(path, "model"), where=path)

@@ -1,0 +1,32 @@
+"""Model terms: the mechanics, the paper's linear torque, and the named effects.
+
+One file per term.  :data:`EFFECTS` is the effects vocabulary (names are part of the
+contract: ``--effects yaw:coulomb_friction`` and model files use them).  A new effect is
+one new file with one :class:`~heli_uq.model.terms.base.AbstractEffect` subclass plus one
+entry here.
+"""
+
+from heli_uq.model.terms.base import AbstractEffect as AbstractEffect
+from heli_uq.model.terms.base import AbstractInputMap as AbstractInputMap
+from heli_uq.model.terms.base import AbstractTerm as AbstractTerm
+from heli_uq.model.terms.base import AbstractTorque as AbstractTorque
+from heli_uq.model.terms.coulomb_friction import CoulombFriction as CoulombFriction
+from heli_uq.model.terms.deadband import DeadBand as DeadBand
+from heli_uq.model.terms.linear_torque import LinearTorque as LinearTorque
+from heli_uq.model.terms.quadratic_drag import QuadraticDrag as QuadraticDrag
+from heli_uq.model.terms.quadratic_thrust import QuadraticThrust as QuadraticThrust
+from heli_uq.model.terms.rigid_body import AbstractMechanics as AbstractMechanics
+from heli_uq.model.terms.rigid_body import ClosedFormMechanics as ClosedFormMechanics
+from heli_uq.model.terms.rigid_body import LagrangianMechanics as LagrangianMechanics
+from heli_uq.model.terms.torque_offset import TorqueOffset as TorqueOffset
+from heli_uq.model.terms.torsional_spring import TorsionalSpring as TorsionalSpring
+
+#: The named effects, by their contract names.
+EFFECTS = {cls.kind: cls for cls in (DeadBand, CoulombFriction, QuadraticDrag, TorsionalSpring,
+                                     QuadraticThrust, TorqueOffset)}  # fmt: skip
+
+__all__ = [
+    "AbstractEffect", "AbstractInputMap", "AbstractTerm", "AbstractTorque", "AbstractMechanics",
+    "ClosedFormMechanics", "LagrangianMechanics", "LinearTorque", "CoulombFriction", "DeadBand",
+    "QuadraticDrag", "QuadraticThrust", "TorqueOffset", "TorsionalSpring", "EFFECTS",
+]  # fmt: skip

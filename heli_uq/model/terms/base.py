@@ -1,0 +1,137 @@
+"""Interfaces of model terms: parameter declarations, generalized forces and input maps.
+
+A model (:class:`~heli_uq.model.HeliModel`) is mechanics plus two stages of terms:
+
+1. **input maps** ``u -> u'`` act on the motor voltages before any gain (a dead band);
+   they are applied in order;
+2. **torques** ``F(x, v, u') -> (T_theta, T_psi)`` [N m] are summed into the generalized
+   force of the Euler-Lagrange equations (the linear gains and damping, friction,
+   springs, neural terms, ...).  A torque is returned as a pair of scalars
+   ``(T_theta, T_psi)`` rather than a (2,) array: XLA then fuses every term into the
+   mechanics' kernel, where stacking small arrays split each Runge-Kutta stage into
+   several kernels (3-10x slower per step on the CPU).
+
+Every term declares its parameters (:meth:`AbstractTerm.parameters`) and reads their
+values by name from the dict ``p`` it is called with, so adding an effect is one new
+file with one class.  All terms are equinox modules with static configuration, so a
+model is a pytree that ``jax.jit`` treats as a constant.
+"""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+
+from heli_uq.errors import ParameterError
+from heli_uq.model.parameter import AXES, Parameter
+
+__all__ = ["AbstractTerm", "AbstractTorque", "AbstractInputMap", "AbstractEffect", "on_axis",
+           "axis_index"]  # fmt: skip
+
+
+def axis_index(axis: str) -> int:
+    """0 for ``"pitch"``, 1 for ``"yaw"``."""
+    if axis not in AXES:
+        raise ParameterError(f"axis must be one of {', '.join(AXES)}, found {axis!r}")
+    return AXES.index(axis)
+
+
+def on_axis(axis: str, torque):
+    """The generalized force ``(T_theta, T_psi)`` [N m] of a scalar torque on one axis.
+
+    The other component is the Python float ``0.0``, which :meth:`HeliModel.force` skips:
+    no operation is traced for it.
+    """
+    return (torque, 0.0) if axis == "pitch" else (0.0, torque)
+
+
+class AbstractTerm(eqx.Module):
+    """A model component that declares parameters."""
+
+    #: Name of the term kind, e.g. ``"coulomb_friction"`` (set by each final class).
+    kind: eqx.AbstractClassVar[str]
+
+    @abc.abstractmethod
+    def parameters(self) -> tuple[Parameter, ...]:
+        """The term's parameters, with names as they appear in results."""
+
+    @property
+    def label(self) -> str:
+        """Human-readable name, e.g. ``"coulomb_friction(yaw)"``."""
+        return self.kind
+
+    def describe(self) -> dict:
+        """JSON description, read back by :func:`heli_uq.model.model_from_description`."""
+        return {"term": self.kind}
+
+    def stiffness(self, p, inertia) -> float:
+        """Largest rate [1/s] this term adds to the linearised dynamics (0 if negligible).
+
+        ``p``: parameter values; ``inertia``: ``(M11, M22_min)`` [kg m^2].  Used to choose
+        the number of solver substeps (:func:`heli_uq.simulate.default_substeps`).
+        """
+        return 0.0
+
+
+class AbstractTorque(AbstractTerm):
+    """A generalized-force term ``(p, x, v, u) -> (T_theta, T_psi)`` [N m], a pair of scalars
+    (use :func:`on_axis` for a torque on one axis).
+
+    ``p``: dict of parameter values by name; ``x = (theta, psi)`` [rad];
+    ``v = (omega_theta, omega_psi)`` [rad/s]; ``u = (u_theta, u_psi)`` [V] after the
+    input maps.  Must be differentiable in ``p``, ``x``, ``v`` and jit-able.
+    """
+
+    @abc.abstractmethod
+    def __call__(self, p, x, v, u):
+        raise NotImplementedError
+
+
+class AbstractInputMap(AbstractTerm):
+    """A map of the voltages ``(p, u) -> u'`` [V] applied before every torque term; ``u``
+    and ``u'`` are pairs ``(u_theta, u_psi)`` of scalars."""
+
+    @abc.abstractmethod
+    def __call__(self, p, u):
+        raise NotImplementedError
+
+
+class AbstractEffect(AbstractTerm):
+    """A named physical effect from the effects vocabulary, acting on one axis.
+
+    The parameters are named ``<bare>_<axis>`` (e.g. ``F_c_yaw``).  Subclasses define
+    :attr:`kind`, :meth:`_declare` (parameters with bare names) and the physics.
+    """
+
+    axis: eqx.AbstractVar[str]
+
+    def __check_init__(self):
+        axis_index(self.axis)
+
+    @abc.abstractmethod
+    def _declare(self) -> tuple[Parameter, ...]:
+        """Parameters with bare names (``F_c``); :meth:`parameters` adds the axis."""
+
+    def parameters(self) -> tuple[Parameter, ...]:
+        out = []
+        for par in self._declare():
+            out.append(Parameter(
+                name=f"{par.name}_{self.axis}", unit=par.unit, default=par.default,
+                prior=par.prior, support=par.support,
+                scales_with_inertia=par.scales_with_inertia,
+                axis=self.axis if par.scales_with_inertia else None,
+                description=f"{par.description} ({self.axis})", start=par.start, bare=par.name,
+            ))  # fmt: skip
+        return tuple(out)
+
+    def name(self, bare: str) -> str:
+        """The full name of one of this effect's parameters."""
+        return f"{bare}_{self.axis}"
+
+    @property
+    def label(self) -> str:
+        return f"{self.kind}({self.axis})"
+
+    def describe(self) -> dict:
+        return {"effect": self.kind, "axis": self.axis}

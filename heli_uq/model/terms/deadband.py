@@ -1,0 +1,42 @@
+"""``deadband``: a motor dead zone on one motor's voltage.
+
+``u' = sign(u) max(|u| - delta, 0)`` replaces that motor's voltage ``u`` [V] before every
+gain it feeds (both axes: a dead band on the yaw motor reduces its yaw torque
+``-K_psi_psi u_psi`` and its pitch torque ``-K_theta_psi u_psi`` alike).  ``delta`` [V]
+>= 0; ``delta = 0`` is no dead band.  The axis names the motor: ``pitch`` is ``u_theta``,
+``yaw`` is ``u_psi``.
+
+No smoothing: the voltages are held constant on each sample interval, so the map is
+applied to constants and introduces no stiffness in time; its kink at ``|u| = delta``
+is in parameter space only.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from heli_uq.model.parameter import Parameter
+from heli_uq.model.prior import Prior
+from heli_uq.model.terms.base import AbstractEffect, AbstractInputMap, axis_index
+
+__all__ = ["DeadBand"]
+
+
+class DeadBand(AbstractEffect, AbstractInputMap):
+    """Dead zone ``sign(u) max(|u| - delta, 0)`` on the motor of ``axis`` (module docstring)."""
+
+    kind: ClassVar[str] = "deadband"
+    axis: str = eqx.field(static=True, default="yaw")
+
+    def _declare(self):
+        return (Parameter("delta", "V", 0.0, Prior("halfnormal", 0.5), "nonnegative", False,
+                          None, "dead-band half-width of the motor voltage", 0.1),)  # fmt: skip
+
+    def __call__(self, p, u):
+        i = axis_index(self.axis)
+        out = list(u)
+        out[i] = jnp.sign(u[i]) * jnp.maximum(jnp.abs(u[i]) - p[self.name("delta")], 0.0)
+        return tuple(out)

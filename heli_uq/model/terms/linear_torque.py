@@ -1,0 +1,48 @@
+"""The paper's torque model (Sec. 2.5): linear motor gains and viscous damping.
+
+``F = K u - D v`` with ``K = [[K_theta_theta, -K_theta_psi], [K_psi_theta, -K_psi_psi]]``
+[N m/V] and ``D = diag(D_theta, D_psi)`` [N m s/rad].
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+from heli_uq.model.parameter import Parameter
+from heli_uq.model.prior import Prior
+from heli_uq.model.terms.base import AbstractTorque
+from heli_uq.model.terms.rigid_body import DEFAULT_LOG_SIGMA
+
+__all__ = ["LinearTorque", "LINEAR_TORQUE_PARAMETERS"]
+
+
+def _gain(name, unit, nominal, fitted, axis, text) -> Parameter:
+    return Parameter(name, unit, nominal, Prior("lognormal", nominal, DEFAULT_LOG_SIGMA),
+                     "nonnegative", True, axis, text, fitted)  # fmt: skip
+
+
+#: Paper Table 2 (default) and Table 1 (start) values.
+LINEAR_TORQUE_PARAMETERS: tuple[Parameter, ...] = (
+    _gain("K_theta_theta", "N m/V", 0.055, 0.105, "pitch", "pitch torque per pitch-motor volt"),
+    _gain("K_theta_psi", "N m/V", 0.005, 0.0017, "pitch",
+          "pitch torque per yaw-motor volt (enters with minus sign)"),
+    _gain("K_psi_theta", "N m/V", 0.15, 0.03, "yaw", "yaw torque per pitch-motor volt"),
+    _gain("K_psi_psi", "N m/V", 0.20, 0.043, "yaw",
+          "yaw torque per yaw-motor volt (enters with minus sign)"),
+    _gain("D_theta", "N m s/rad", 0.01, 0.014, "pitch", "viscous friction in pitch"),
+    _gain("D_psi", "N m s/rad", 0.08, 0.11, "yaw", "viscous friction in yaw"),
+)  # fmt: skip
+
+
+class LinearTorque(AbstractTorque):
+    """``F = K u - D v`` (paper Sec. 2.5), returning ``(T_theta, T_psi)`` [N m]."""
+
+    kind: ClassVar[str] = "linear"
+
+    def parameters(self) -> tuple[Parameter, ...]:
+        return LINEAR_TORQUE_PARAMETERS
+
+    def __call__(self, p, x, v, u):
+        t_theta = p["K_theta_theta"] * u[0] - p["K_theta_psi"] * u[1] - p["D_theta"] * v[0]
+        t_psi = p["K_psi_theta"] * u[0] - p["K_psi_psi"] * u[1] - p["D_psi"] * v[1]
+        return t_theta, t_psi

@@ -1,0 +1,131 @@
+"""Diagnostics from an InferenceData: convergence, fit and calibration, as one record.
+
+Only reads the package's InferenceData (:mod:`heli_uq.output.inference_data`); never runs
+inference.
+Conventions (Vehtari et al. 2021): rank-normalised split R-hat <= 1.01, bulk and tail
+ESS >= 400, no divergences after warm-up, E-BFMI >= 0.3.  For emcee, R-hat and ESS are
+computed across *independent ensembles* (each ensemble is one "chain"), never across
+walkers of one ensemble, which are not independent; the integrated autocorrelation
+time and acceptance per ensemble are reported as well.
+"""
+
+from __future__ import annotations
+
+import json
+
+import arviz as az
+import numpy as np
+
+from heli_uq.probability.likelihood import loss_v
+
+__all__ = ["RHAT_MAX", "ESS_MIN", "BFMI_MIN", "convergence", "predictive_checks", "summarize"]
+
+RHAT_MAX = 1.01
+ESS_MIN = 400
+BFMI_MIN = 0.3
+
+
+def _diagnostic_vars(idata) -> list[str]:
+    post = idata.posterior
+    return [v for v in post.data_vars if v != "z"]
+
+
+def _worst(column, pick):
+    values = column.dropna()
+    if values.empty:
+        return None
+    return str(values.idxmax() if pick is max else values.idxmin())
+
+
+def convergence(idata) -> dict:
+    """R-hat, ESS, divergences, tree depth, BFMI (NUTS) or acceptance and tau (emcee)."""
+    names = _diagnostic_vars(idata)
+    summ = az.summary(idata, var_names=names, kind="diagnostics")
+    info = json.loads(idata.posterior.attrs.get("sampler_info", "{}"))
+    out = {
+        "sampler": info.get("sampler"),
+        "chains": int(idata.posterior.sizes["chain"]),
+        "draws": int(idata.posterior.sizes["draw"]),
+        "rhat_max": float(summ["r_hat"].max()),
+        "ess_bulk_min": float(summ["ess_bulk"].min()),
+        "ess_tail_min": float(summ["ess_tail"].min()),
+        # R-hat needs >= 2 chains; with one chain arviz gives NaN and we report null.
+        "worst_rhat_variable": _worst(summ["r_hat"], max),
+        "worst_ess_variable": _worst(summ["ess_bulk"], min),
+    }
+    for key in ("map_seconds", "warmup_seconds", "map_decrement", "target_accept", "substeps"):
+        if key in info:
+            out[key] = info[key]
+    stats = idata.sample_stats
+    if "diverging" in stats:
+        out["divergences"] = int(stats["diverging"].sum())
+        depth = int(info.get("max_tree_depth", 10))
+        out["tree_depth_saturation"] = float((stats["tree_depth"] >= depth).mean())
+        out["mean_leapfrog_steps"] = float(stats["n_steps"].mean())
+        out["bfmi_min"] = float(np.min(az.bfmi(idata)))
+        out["step_size"] = info.get("step_size")
+    else:
+        out["divergences"] = 0
+        for key in ("acceptance", "tau", "ess_emcee", "warnings"):
+            if key in info:
+                out[key] = info[key]
+    out["converged"] = bool(
+        out["rhat_max"] <= RHAT_MAX and out["ess_bulk_min"] >= ESS_MIN
+        and out["ess_tail_min"] >= ESS_MIN and out["divergences"] == 0
+        and out.get("bfmi_min", 1.0) >= BFMI_MIN
+    )  # fmt: skip
+    return out
+
+
+def _windows(idata) -> dict[str, np.ndarray]:
+    cd = idata.constant_data
+    out = {"train": np.asarray(cd["train_mask"], bool)}
+    test = np.asarray(cd["test_mask"], bool)
+    if test.any():
+        out["test"] = test
+    return out
+
+
+def predictive_checks(idata) -> dict:
+    """RMSE [rad] of the posterior-mean simulation, coverage of the 50 % and 90 % bands,
+    and the paper's loss V, per window (``train``, ``test``) and output."""
+    pp = idata.posterior_predictive
+    y_pred = np.asarray(pp["y_pred"]).reshape((-1,) + pp["y_pred"].shape[2:])
+    y_sim = np.asarray(pp["y_sim"]).reshape((-1,) + pp["y_sim"].shape[2:])
+    y_obs = np.asarray(idata.constant_data["y_obs"])
+    q = np.quantile(y_pred, [0.05, 0.25, 0.75, 0.95], axis=0)
+    mean_sim = y_sim.mean(axis=0)
+    out = {}
+    for window, mask in _windows(idata).items():
+        res = {"rmse": {}, "coverage90": {}, "coverage50": {}}
+        for j, name in enumerate(("theta", "psi")):
+            obs = y_obs[mask, j]
+            res["rmse"][name] = float(np.sqrt(np.mean((mean_sim[mask, j] - obs) ** 2)))
+            res["coverage90"][name] = float(np.mean((obs >= q[0, mask, j]) & (obs <= q[3, mask, j])))
+            res["coverage50"][name] = float(np.mean((obs >= q[1, mask, j]) & (obs <= q[2, mask, j])))
+        res["loss_v_posterior_mean_sim"] = float(loss_v(mean_sim[mask], y_obs[mask]))
+        res["loss_v_mean_over_draws"] = float(np.mean([loss_v(s[mask], y_obs[mask]) for s in y_sim]))
+        res["n_samples"] = int(mask.sum())
+        out[window] = res
+    return out
+
+
+def summarize(idata, *, wall_seconds: float | None = None) -> dict:
+    """The ``summary.json`` record: convergence + predictive checks (+ wall time)."""
+    conv = convergence(idata)
+    checks = predictive_checks(idata)
+    out = dict(conv)
+    out["windows"] = checks
+    out["rmse"] = checks["train"]["rmse"]
+    out["coverage90"] = checks["train"]["coverage90"]
+    if "test" in checks:
+        out["rmse_test"] = checks["test"]["rmse"]
+        out["coverage90_test"] = checks["test"]["coverage90"]
+    attrs = idata.posterior.attrs
+    out["error_model"] = attrs.get("error_model")
+    out["model"] = json.loads(attrs["model"]) if "model" in attrs else None
+    out["model_label"] = attrs.get("model_label")
+    out["unidentified_coordinates"] = attrs.get("unidentified_coordinates")
+    if wall_seconds is not None:
+        out["wall_s"] = float(wall_seconds)
+    return out

@@ -1,0 +1,289 @@
+"""Sampling coordinates in which the record's (non-)identifiable directions are explicit.
+
+The angles depend on the parameters only through ratios to the inertias: divide the
+pitch equation by ``M11 = J_bc + m r_c^2 + m h^2`` and the yaw equation by ``M22``,
+which is ``M11`` times a ratio too.  Every parameter flagged ``scales_with_inertia``
+(masses, inertias, torque-type parameters of any term) enters only through such a
+ratio, so multiplying all of them by one factor leaves the angles unchanged.  The
+``identifiable`` strategy samples
+
+======================  ===============================  ==================================
+coordinate              meaning                          identified by the angles?
+======================  ===============================  ==================================
+log_J_pitch             log M11 [kg m^2]                 no: the common scale (its
+                                                         posterior = its conditional prior)
+log_gravity_ratio       log(m g r_c / M11) [1/s^2]       yes
+logit_body_fraction     logit(m (r_c^2 + h^2) / M11)     only through h: weak when h ~ 0,
+                                                         none when h is fixed at 0
+h_over_r_c              h / r_c                          yes (if h is free)
+log_<X>_ratio           log(X / M11) for every other     yes (some weakly, e.g. J_s)
+                        scaled parameter X of the pitch
+                        axis (``X_ratio`` for a prior
+                        on the real line, e.g. T_0)
+log_<X>_yaw_ratio       log(X / M22(theta_ref)) for the  yes
+                        yaw axis
+log_<Y>, <Y>, logit_<Y> every unscaled parameter Y        as the data allow
+                        (r_c excepted), by its prior's
+                        support (log, identity, logit)
+======================  ===============================  ==================================
+
+The first four are the mechanics' :data:`~heli_uq.model.terms.rigid_body.BODY_COORDINATES`;
+the rest follow from each parameter's declaration (``scales_with_inertia``, ``axis``)
+and prior, so an effect added to the model gets its coordinate without code here.
+
+The yaw torques act through the yaw inertia ``M22(theta)``, which the record identifies
+mainly at the pitch angles it visits.  Relative to ``M11`` the yaw gains trade against
+``J_s / M11`` along a *curved* ridge, and NUTS diverges where that ridge bends; relative
+to ``M22`` at a reference pitch ``theta_ref`` (``yaw_theta_ref``, by default the median
+measured pitch of the training window) the ridge is nearly straight.
+
+**The common scale is integrated out exactly.**  Every scaled parameter ``X`` is ``M11``
+times a function of the other coordinates, so its log is ``s + c_X(z_rest)`` with
+``s = log M11``.  The log-normal priors among them make the conditional prior of ``s``
+Gaussian, ``N(mean(z_rest), sd)``; :meth:`Coordinates.marginal_log_prior` returns the
+log prior with ``s = mean + sd * eps``, where ``eps ~ N(0, 1)`` is a separate site: the
+Gaussian part is integrated analytically, the rest (half-normal friction levels, a
+normal torque offset, the Jacobian) is evaluated at ``s``.  With only log-normal scaled
+priors ``eps`` is exactly independent of the data, a direction the likelihood never
+sees.  The priors stay the user's priors on the *physical* parameters: the log density
+includes ``log |det dw/dz|`` where ``w`` are the coordinates in which each prior's
+density is written (:meth:`heli_uq.model.Prior.log_density_coordinate`).  Priors that
+do not allow the ratio map (e.g. a fixed scaled parameter, which breaks the symmetry)
+fall back to plain per-parameter coordinates (``strategy="log"``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from heli_uq.errors import ParameterError
+from heli_uq.model.heli_model import HeliModel
+from heli_uq.model.terms.rigid_body import (
+    BODY_PARAMETERS,
+    body_coordinates,
+    body_from_ratios,
+    body_to_ratios,
+    pitch_inertia,
+    ratio_coordinates_allowed,
+    yaw_inertia,
+)
+
+__all__ = ["Coordinates", "STRATEGIES"]
+
+STRATEGIES = ("auto", "identifiable", "log")
+_PREFIX = {"log": "log_", "identity": "", "logit": "logit_"}
+
+
+def _coordinate_name(name: str, transform: str, suffix: str = "") -> str:
+    return f"{_PREFIX[transform]}{name}{suffix}"
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Coordinates:
+    """Map between unconstrained sampling coordinates ``z`` and the model's parameters.
+
+    Parameters
+    ----------
+    model : HeliModel
+    priors : mapping of str to Prior
+        One prior per model parameter; ``fixed`` priors are not sampled.
+    strategy : {"auto", "identifiable", "log"}
+        ``auto`` uses ``identifiable`` when the model and priors allow it.
+    yaw_theta_ref : float
+        Pitch angle [rad] at which the yaw inertia of the yaw-ratio coordinates is taken.
+
+    Attributes
+    ----------
+    free : tuple of str
+        Free parameter names, in model order.
+    names : tuple of str
+        Coordinate names; ``log_J_pitch`` first for the identifiable strategy.
+    unidentified : tuple of str
+        Coordinates the angles do not depend on.
+    resolved : str
+        The strategy in use.
+    """
+
+    model: HeliModel
+    priors: Mapping
+    strategy: str = "auto"
+    yaw_theta_ref: float = 0.0
+
+    def __post_init__(self):
+        if self.strategy not in STRATEGIES:
+            raise ParameterError(f"strategy: expected one of {STRATEGIES}, found {self.strategy!r}")
+        params = self.model.parameters()
+        missing = [p.name for p in params if p.name not in self.priors]
+        if missing:
+            raise ParameterError(f"priors: no prior for {', '.join(missing)}")
+        free = tuple(p.name for p in params if self.priors[p.name].free)
+        object.__setattr__(self, "free", free)
+        possible = self._ratio_map_possible()
+        strategy = ("identifiable" if possible else "log") if self.strategy == "auto" else self.strategy
+        if strategy == "identifiable" and not possible:
+            raise ParameterError(
+                "identifiable coordinates need the closed-form mechanics, log-normal priors on "
+                "r_c, m, J_bc, g fixed, h normal or fixed at 0, every inertia-scaled parameter "
+                "free and none with a uniform prior"
+            )
+        object.__setattr__(self, "resolved", strategy)
+        decl = {p.name: p for p in params}
+        specs = []  # (coordinate name, parameter name, kind) kind: body | ratio | plain
+        if strategy == "identifiable":
+            body, unidentified = body_coordinates(self.priors)
+            specs += [(c, None, "body") for c in body]
+            for n in free:
+                if n in BODY_PARAMETERS:
+                    continue
+                tr = self.priors[n].transform
+                if decl[n].scales_with_inertia:
+                    # "_yaw_ratio": relative to M22; effect names already end in "_yaw"
+                    yaw = decl[n].axis == "yaw" and not n.endswith("_yaw")
+                    suffix = "_yaw_ratio" if yaw else "_ratio"
+                    specs.append((_coordinate_name(n, tr, suffix), n, "ratio"))
+                else:
+                    specs.append((_coordinate_name(n, tr), n, "plain"))
+        else:
+            specs = [(_coordinate_name(n, self.priors[n].transform), n, "plain") for n in free]
+            unidentified = ()
+        object.__setattr__(self, "_specs", tuple(specs))
+        object.__setattr__(self, "_decl", decl)
+        object.__setattr__(self, "names", tuple(s[0] for s in specs))
+        object.__setattr__(self, "unidentified", unidentified)
+
+    def _ratio_map_possible(self) -> bool:
+        if not getattr(self.model.mechanics, "ratio_coordinates", False):
+            return False
+        if not ratio_coordinates_allowed(self.priors):
+            return False
+        scaled = [p for p in self.model.parameters() if p.scales_with_inertia]
+        return all(self.priors[p.name].free and self.priors[p.name].kind != "uniform" for p in scaled)
+
+    # ---------------------------------------------------------------- facts
+    @property
+    def dim(self) -> int:
+        return len(self.names)
+
+    @property
+    def marginal_scale(self) -> bool:
+        """True when ``log_J_pitch`` is integrated out (identifiable strategy)."""
+        return self.resolved == "identifiable"
+
+    @property
+    def sampled_names(self) -> tuple[str, ...]:
+        """Coordinates the sampler moves in (``names`` without ``log_J_pitch`` if marginal)."""
+        return self.names[1:] if self.marginal_scale else self.names
+
+    def _inertia(self, p, axis):
+        return yaw_inertia(p, self.yaw_theta_ref) if axis == "yaw" else pitch_inertia(p)
+
+    # ------------------------------------------------------------------ maps
+    def to_physical(self, z) -> dict:
+        """Every model parameter (jnp scalars, SI) from coordinates ``z`` of shape (dim,)."""
+        out = {n: jnp.asarray(pr.a, dtype=jnp.float64) for n, pr in self.priors.items()
+               if not pr.free}  # fmt: skip
+        later = []
+        start = sum(1 for s in self._specs if s[2] == "body")
+        if self.resolved == "identifiable":
+            body = [jnp.exp(z[0]), jnp.exp(z[1]), jax.nn.sigmoid(z[2]),
+                    z[3] if start == 4 else jnp.zeros(())]  # fmt: skip
+            out.update(body_from_ratios(*body, out))
+        for i, (_, n, kind) in enumerate(self._specs[start:], start):
+            if kind == "plain":
+                out[n] = self.priors[n].from_coordinate(z[i])
+            elif self._decl[n].axis == "yaw":
+                later.append((i, n))  # needs M22, i.e. J_s and the body, first
+            else:
+                out[n] = pitch_inertia(out) * self.priors[n].from_coordinate(z[i])
+        for i, n in later:
+            out[n] = self._inertia(out, "yaw") * self.priors[n].from_coordinate(z[i])
+        return out
+
+    def from_physical(self, values: Mapping[str, float]) -> np.ndarray:
+        """Coordinates of a full parameter mapping (inverse of :meth:`to_physical`)."""
+        v = {n: float(values[n]) for n in self.priors}
+        z = []
+        if self.resolved == "identifiable":
+            m11, gamma, frac, rho = body_to_ratios(v)
+            z += [math.log(m11), math.log(gamma), math.log(frac / (1.0 - frac)), rho]
+            z = z[: sum(1 for s in self._specs if s[2] == "body")]
+        for _, n, kind in self._specs:
+            if kind == "body":
+                continue
+            x = v[n] if kind == "plain" else v[n] / float(self._inertia(v, self._decl[n].axis))
+            z.append(float(self.priors[n].to_coordinate(x)))
+        return np.asarray(z, dtype=float)
+
+    # ----------------------------------------------------------------- prior
+    def prior_coordinates(self, z):
+        """``w`` of every free parameter: the coordinate its prior density is written in."""
+        phys = self.to_physical(z)
+        return jnp.stack([self.priors[n].to_coordinate(phys[n]) for n in self.free])
+
+    def _log_jacobian(self, z):
+        if self.resolved == "log":  # w = z
+            return jnp.zeros(())
+        return jnp.linalg.slogdet(jax.jacfwd(self.prior_coordinates)(z))[1]
+
+    def log_prior(self, z):
+        """Log prior density of ``z`` (all coordinates): the physical priors plus
+        ``log |det dw/dz|``."""
+        w = self.prior_coordinates(z)
+        lp = sum(self.priors[n].log_density_coordinate(w[i]) for i, n in enumerate(self.free))
+        return lp + self._log_jacobian(z)
+
+    def _gaussian_scale_terms(self):
+        """Free parameters whose log-normal prior coordinate is ``log M11 + c(z_rest)``."""
+        return [i for i, n in enumerate(self.free)
+                if self._decl[n].scales_with_inertia and self.priors[n].kind == "lognormal"]  # fmt: skip
+
+    def scale_conditional(self, z_rest):
+        """Gaussian conditional prior of ``log M11`` from the log-normal scaled priors.
+
+        Returns ``(log_marginal, mean, sd)``: the log density of those priors with
+        ``log M11`` integrated out, and the mean and sd of ``log M11`` given ``z_rest``.
+        """
+        idx = self._gaussian_scale_terms()
+        z0 = jnp.concatenate([jnp.zeros(1), z_rest])
+        c = self.prior_coordinates(z0)[jnp.asarray(idx)]
+        mu = jnp.asarray([self.priors[self.free[i]].coordinate_moments()[0] for i in idx])
+        sd = jnp.asarray([self.priors[self.free[i]].b for i in idx])
+        lam = jnp.sum(1.0 / sd**2)
+        b = jnp.sum((mu - c) / sd**2)
+        base = jnp.sum(-0.5 * ((c - mu) / sd) ** 2 - jnp.log(sd) - 0.5 * jnp.log(2 * jnp.pi))
+        log_marginal = base + 0.5 * b * b / lam - 0.5 * jnp.log(lam) + 0.5 * jnp.log(2 * jnp.pi)
+        return log_marginal, b / lam, 1.0 / jnp.sqrt(lam)
+
+    def marginal_log_prior(self, z_rest, eps):
+        """Log prior of ``(z_rest, eps)`` with ``log M11 = mean + sd eps`` (module docstring).
+
+        Returns ``(log density without the N(0, 1) of eps, full z)``.
+        """
+        log_marginal, mean, sd = self.scale_conditional(z_rest)
+        z = jnp.concatenate([(mean + sd * eps)[None], z_rest])
+        gauss = set(self._gaussian_scale_terms())
+        w = self.prior_coordinates(z)
+        rest = sum((self.priors[n].log_density_coordinate(w[i]) for i, n in enumerate(self.free)
+                    if i not in gauss), jnp.zeros(()))  # fmt: skip
+        return log_marginal + rest + self._log_jacobian(z), z
+
+    def scale_noise(self, z) -> float:
+        """``eps`` of full coordinates ``z`` (inverse of the map in :meth:`marginal_log_prior`)."""
+        _, mean, sd = self.scale_conditional(jnp.asarray(z[1:]))
+        return float((z[0] - mean) / sd)
+
+    def prior_moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and sd of each free parameter's prior in its coordinate ``w`` (model order)."""
+        m = np.array([self.priors[n].coordinate_moments() for n in self.free])
+        return m[:, 0], m[:, 1]
+
+    def describe(self) -> dict:
+        """JSON facts: strategy, coordinate names, unidentified ones, ``yaw_theta_ref``."""
+        return {"strategy": self.resolved, "names": list(self.names),
+                "unidentified": list(self.unidentified), "yaw_theta_ref": self.yaw_theta_ref}  # fmt: skip

@@ -1,0 +1,87 @@
+"""The probabilistic model, written once for NUTS, emcee and prediction (numpyro).
+
+``heli_model(problem, y=None, mode=...)``:
+
+* the sampling coordinates ``z`` of the model's free parameters with their physical
+  priors (:mod:`heli_uq.probability.coordinates`), the common inertia scale drawn as
+  ``scale_noise`` from its exact conditional prior;
+* the initial state ``theta0, psi0, omega_theta0, omega_psi0``;
+* the error model: ``sigma_theta, sigma_psi`` and, for AR(1), ``tau_theta, tau_psi``
+  with ``rho = exp(-dt / tau)`` (deterministic ``sigma``, ``tau``, ``rho`` per output);
+* deterministic physical parameters by name.
+
+``mode="fit"`` (default, ``y`` given): one simulation of the training window and the
+log likelihood of :mod:`heli_uq.probability.likelihood` as the factor ``log_likelihood``.
+``mode="params"`` stops before simulating: mapping draws to physical parameters costs no
+ODE solve.  ``mode="predict"``: simulate the whole span and draw predictive angles
+(``y_sim``, and ``y_pred`` with error-model noise).  A failed solve is a rejected
+proposal (``-inf``), never an exception.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpyro
+import numpyro.distributions as dist
+from numpyro.distributions import constraints
+
+from heli_uq.errors import ParameterError
+from heli_uq.model.tables import X0_NAMES
+from heli_uq.probability.likelihood import log_likelihood
+from heli_uq.probability.noise import ar1_noise
+from heli_uq.probability.priors import OUTPUTS
+from heli_uq.probability.problem import Problem
+
+__all__ = ["heli_model", "MODES"]
+
+MODES = ("fit", "params", "predict")
+
+
+def _scalar_site(name: str, prior):
+    """A sampled scalar (normal or log-normal prior) or a deterministic fixed value."""
+    if prior.kind == "fixed":
+        return numpyro.deterministic(name, jnp.asarray(prior.a))
+    if prior.kind == "normal":
+        return numpyro.sample(name, dist.Normal(prior.a, prior.b))
+    if prior.kind == "lognormal":
+        return numpyro.sample(name, dist.LogNormal(jnp.log(prior.a), prior.b))
+    raise ParameterError(f"{name}: prior {prior.describe()} is not supported here")
+
+
+def heli_model(problem: Problem, y=None, mode: str = "fit"):
+    """numpyro model of a record (module docstring)."""
+    coords = problem.coords
+    n_z = len(coords.sampled_names)
+    z = numpyro.sample("z", dist.ImproperUniform(constraints.real_vector, (), (n_z,)))
+    if coords.marginal_scale:
+        eps = numpyro.sample("scale_noise", dist.Normal(0.0, 1.0))
+        log_prior, z = coords.marginal_log_prior(z, eps)
+        numpyro.deterministic("log_J_pitch", z[0])
+    else:
+        log_prior = coords.log_prior(z)
+    numpyro.factor("prior", log_prior)
+    phys = coords.to_physical(z)
+    for name in coords.free:
+        numpyro.deterministic(name, phys[name])
+    x0 = jnp.stack([_scalar_site(n, problem.priors.x0_prior(n, problem.x0_center)) for n in X0_NAMES])
+    sigma = numpyro.deterministic("sigma", jnp.stack(
+        [_scalar_site(f"sigma_{o}", problem.priors.noise[f"sigma_{o}"]) for o in OUTPUTS]))
+    rho = None
+    if problem.error == "ar1":
+        tau = numpyro.deterministic("tau", jnp.stack(
+            [_scalar_site(f"tau_{o}", problem.priors.noise[f"tau_{o}"]) for o in OUTPUTS]))
+        rho = numpyro.deterministic("rho", jnp.exp(-problem.dt / tau))
+    if mode == "params":
+        return
+    n = problem.n_train if mode == "fit" else None
+    sol = problem.solve(phys, x0, n)
+    ok = sol.ok
+    # A failed solve is a rejected proposal: -inf log density, finite placeholders.
+    numpyro.factor("solver_ok", jnp.where(ok, 0.0, -jnp.inf))
+    sim = jnp.where(ok, sol.ys[:, :2], 0.0)
+    if mode == "predict":
+        noise = ar1_noise(numpyro.prng_key(), sim.shape[0], sigma, rho)
+        numpyro.deterministic("y_pred", sim + noise)
+        numpyro.deterministic("y_sim", sim)
+        return
+    numpyro.factor("log_likelihood", log_likelihood(sim, y, sigma, rho))

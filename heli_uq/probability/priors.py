@@ -1,0 +1,141 @@
+"""The prior of a posterior study: the model's parameters, the initial state, the errors.
+
+The default prior of each model parameter is declared by the term that owns it
+(:class:`heli_uq.model.Parameter`); :class:`PriorSet` adds the initial state and the
+error model.  Users change any entry by name (``--prior NAME=KIND:A:B``, ``--fix
+NAME=VALUE`` or ``--priors FILE.json`` with ``{"m": {"lognormal": [0.5, 1.0]}, "h": 0}``).
+
+==========================  ===========================  ===================================
+quantity                    default prior                why
+==========================  ===========================  ===================================
+model parameters            declared by each term        e.g. Table 2 log-normals (sigma_log
+                                                         2) for the mechanics and the gains,
+                                                         half-normals for friction levels
+theta0, psi0                normal(first sample, 0.05)   rad; measurement noise is a few mrad
+omega_theta0, omega_psi0    normal(0, 0.2)               rad/s; the rig starts nearly at rest
+sigma_theta, sigma_psi      log-normal(0.05 rad, 1.5)    residual scale incl. model error
+tau_theta, tau_psi (AR(1))  log-normal(0.5 s, 1.0)       correlation time of the residuals;
+                                                         rho = exp(-dt / tau).  A prior on
+                                                         tau (not a flat one on rho) keeps
+                                                         the AR(1) from turning a misfit
+                                                         into a random walk (rho -> 1)
+==========================  ===========================  ===================================
+
+The initial-state priors may be ``normal`` or ``fixed`` (an explicit normal replaces the
+default centred on the first sample); the error-model priors ``lognormal`` or ``fixed``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Mapping
+
+from heli_uq.errors import ParameterError
+from heli_uq.model.heli_model import HeliModel
+from heli_uq.model.parameter import check_prior
+from heli_uq.model.prior import Prior, parse_prior_text, prior_from_json
+from heli_uq.model.tables import X0_NAMES
+
+__all__ = ["PriorSet", "X0_ANGLE_SD", "X0_RATE_SD", "SIGMA_PRIOR", "TAU_PRIOR", "OUTPUTS",
+           "parse_prior_option", "load_priors_json"]  # fmt: skip
+
+X0_ANGLE_SD = 0.05  # rad
+X0_RATE_SD = 0.2  # rad/s
+SIGMA_PRIOR = Prior("lognormal", 0.05, 1.5)  # residual scale per output [rad]
+TAU_PRIOR = Prior("lognormal", 0.5, 1.0)  # AR(1) correlation time per output [s]
+OUTPUTS = ("theta", "psi")
+_NOISE_NAMES = tuple(f"sigma_{o}" for o in OUTPUTS) + tuple(f"tau_{o}" for o in OUTPUTS)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PriorSet:
+    """Priors of everything a posterior study samples.
+
+    Attributes
+    ----------
+    params : dict of str to Prior
+        One per model parameter (``fixed`` ones are not sampled).
+    x0 : dict of str to Prior or None
+        ``theta0, psi0, omega_theta0, omega_psi0``; ``None`` is the default (angles:
+        normal around the first measured sample, sd :data:`X0_ANGLE_SD`; rates:
+        normal(0, :data:`X0_RATE_SD`)).
+    noise : dict of str to Prior
+        ``sigma_theta, sigma_psi, tau_theta, tau_psi``.
+    """
+
+    params: dict
+    x0: dict
+    noise: dict
+
+    @classmethod
+    def default(cls, model: HeliModel) -> PriorSet:
+        """Every term's declared prior, the default initial-state and error priors."""
+        return cls({p.name: p.prior for p in model.parameters()}, {n: None for n in X0_NAMES},
+                   {**{f"sigma_{o}": SIGMA_PRIOR for o in OUTPUTS},
+                    **{f"tau_{o}": TAU_PRIOR for o in OUTPUTS}})  # fmt: skip
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(self.params) + X0_NAMES + _NOISE_NAMES
+
+    def x0_prior(self, name: str, y0) -> Prior:
+        """The prior of an initial-state entry; ``y0`` = first measured angles (2,) [rad]."""
+        prior = self.x0[name]
+        if prior is not None:
+            return prior
+        i = X0_NAMES.index(name)
+        return Prior("normal", float(y0[i]), X0_ANGLE_SD) if i < 2 else Prior("normal", 0.0, X0_RATE_SD)
+
+    def updated(self, model: HeliModel, changes: Mapping, *, where: str = "priors") -> PriorSet:
+        """A copy with entries replaced; ``changes`` maps names to :class:`Prior` or JSON specs.
+
+        Raises
+        ------
+        ParameterError
+            Unknown name, a prior whose support leaves the parameter's support, or an
+            initial-state / error prior of an unsupported kind.
+        """
+        params, x0, noise = dict(self.params), dict(self.x0), dict(self.noise)
+        for name, spec in changes.items():
+            prior = spec if isinstance(spec, Prior) else prior_from_json(spec, f"{where}: {name}")
+            if name in params:
+                params[name] = check_prior(model.parameter(name), prior, where)
+            elif name in x0:
+                if prior.kind not in ("normal", "fixed"):
+                    raise ParameterError(f"{where}: prior of {name!r} must be normal or fixed, found "
+                                         f"{prior.describe()}")  # fmt: skip
+                x0[name] = prior
+            elif name in noise:
+                if prior.kind not in ("lognormal", "fixed") or (prior.kind == "fixed" and prior.a <= 0):
+                    raise ParameterError(f"{where}: prior of {name!r} must be lognormal or fixed > 0, "
+                                         f"found {prior.describe()}")  # fmt: skip
+                noise[name] = prior
+            else:
+                raise ParameterError(f"{where}: unknown name {name!r}; expected one of "
+                                     f"{', '.join(self.names)}")  # fmt: skip
+        return PriorSet(params, x0, noise)
+
+    def to_json(self) -> dict:
+        """``{name: spec}`` of every entry (``null`` for the data-centred x0 default)."""
+        out = {n: p.to_json() for n, p in self.params.items()}
+        out.update({n: (None if p is None else p.to_json()) for n, p in self.x0.items()})
+        out.update({n: p.to_json() for n, p in self.noise.items()})
+        return out
+
+
+def parse_prior_option(text: str, *, option: str = "prior") -> tuple[str, Prior]:
+    """``"m=lognormal:0.5:1.0"``, ``"F_c_yaw=halfnormal:0.01"`` or ``"h=0"`` -> (name, Prior)."""
+    name, sep, rest = str(text).partition("=")
+    if not sep or not name.strip():
+        raise ParameterError(f"{option} {text!r}: expected NAME=KIND:A:B or NAME=VALUE")
+    return name.strip(), parse_prior_text(rest, f"{option} {name.strip()}")
+
+
+def load_priors_json(path: str | os.PathLike) -> dict:
+    """``{name: spec}`` from a JSON file (applied with :meth:`PriorSet.updated`)."""
+    from heli_uq.io import read_json_object
+
+    path = os.fspath(path)
+    raw = read_json_object(path, "prior")
+    return {name: prior_from_json(spec, f"{path}: {name}") for name, spec in raw.items()}

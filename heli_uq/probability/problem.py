@@ -1,0 +1,161 @@
+"""A posterior problem: the record's windows, the model, the priors, the coordinates and the
+error model, in one frozen object that every inference stage takes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+
+import jax.numpy as jnp
+import numpy as np
+
+from heli_uq.data.record import Experiment
+from heli_uq.errors import ParameterError
+from heli_uq.model.heli_model import HeliModel
+from heli_uq.probability.coordinates import Coordinates
+from heli_uq.probability.noise import ERROR_MODELS
+from heli_uq.probability.priors import PriorSet
+from heli_uq.simulate.solver import default_substeps, solve
+
+__all__ = ["Problem", "make_problem", "fingerprint"]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Problem:
+    """Everything the probabilistic model needs.
+
+    Attributes
+    ----------
+    model : HeliModel
+    u : ndarray, shape (N, 2)
+        Voltages [V] over the whole simulated span (training window, then up to the end
+        of the test window).
+    y : ndarray, shape (N, 2)
+        Measured angles [rad] over the same span.
+    t : ndarray, shape (N,)
+        Sample times [s] (absolute, as in the record).
+    dt : float
+        Sample time [s].
+    n_train : int
+        The likelihood uses samples ``[0, n_train)`` (and simulates only those).
+    test : tuple of int or None
+        ``(start, stop)`` sample indices of the held-out test window, if any.
+    priors : PriorSet
+    coords : Coordinates
+    error : {"iid", "ar1"}
+    substeps : int
+        RK4 substeps per sample of every simulation.
+    source : str
+    """
+
+    model: HeliModel
+    u: np.ndarray
+    y: np.ndarray
+    t: np.ndarray
+    dt: float
+    n_train: int
+    test: tuple[int, int] | None
+    priors: PriorSet
+    coords: Coordinates
+    error: str = "ar1"
+    substeps: int = 1
+    source: str = ""
+
+    @property
+    def x0_center(self) -> np.ndarray:
+        return self.y[0]
+
+    def windows(self) -> dict[str, tuple[int, int]]:
+        """``{"train": (0, n_train), "test": (start, stop)}`` sample-index ranges."""
+        out = {"train": (0, self.n_train)}
+        if self.test is not None:
+            out["test"] = self.test
+        return out
+
+    def solve(self, params, x0, n: int | None = None, *, gradients: str = "adjoint"):
+        """Simulate the first ``n`` samples of the span (default all) with the problem's
+        model and substeps; a :class:`~heli_uq.simulate.Solution`."""
+        u = jnp.asarray(self.u if n is None else self.u[:n])
+        return solve(params, x0, u, self.dt, model=self.model, substeps=self.substeps,
+                     gradients=gradients)  # fmt: skip
+
+    def with_substeps(self, substeps: int) -> Problem:
+        """A copy simulating with ``substeps`` RK4 steps per sample."""
+        return dataclasses.replace(self, substeps=int(substeps))
+
+
+def make_problem(record: Experiment, train=None, test=None, *, model: HeliModel | None = None,
+                 priors: PriorSet | None = None, error: str = "ar1", strategy: str = "auto",
+                 substeps: int | None = None) -> Problem:  # fmt: skip
+    """Build a :class:`Problem` from a record and optional train/test windows [s].
+
+    Parameters
+    ----------
+    record : Experiment
+    train, test : (float, float), optional
+        ``(start, stop)`` in seconds; ``train`` defaults to the whole record.  The test
+        window must start at or after the end of the training window.  The likelihood
+        simulates the training window only; predictions run to the end of ``test``.
+    model : HeliModel, optional
+        Default: the paper's model.
+    priors : PriorSet, optional
+        Default: :meth:`PriorSet.default` of the model.
+    error : {"iid", "ar1"}
+    strategy : {"auto", "identifiable", "log"}
+        Sampling coordinates (:class:`~heli_uq.probability.Coordinates`).
+    substeps : int, optional
+        RK4 substeps per sample; default :func:`~heli_uq.simulate.default_substeps` at the
+        model's start values over the training window's pitch angles (1 for the paper's
+        model).  The MAP stage raises it if the fitted parameters need more.
+
+    Raises
+    ------
+    ParameterError
+        Unknown error model, overlapping windows, or priors of another model.
+    """
+    if error not in ERROR_MODELS:
+        raise ParameterError(f"error: expected one of {ERROR_MODELS}, found {error!r}")
+    model = HeliModel() if model is None else model
+    priors = PriorSet.default(model) if priors is None else priors
+    if set(priors.params) != set(model.names):
+        raise ParameterError(f"priors: they are for the parameters {', '.join(priors.params)}, "
+                             f"the model has {', '.join(model.names)}")  # fmt: skip
+    t0 = float(record.t[0])
+    a, b = train if train is not None else (t0, t0 + record.duration)
+    tr = record.window(a, b)
+    coords = Coordinates(model, priors.params, strategy, yaw_theta_ref=float(np.median(tr.y[:, 0])))
+    if test is None:
+        span, test_idx = tr, None
+    else:
+        c, d = test
+        if c < b - 0.5 * record.dt:
+            raise ParameterError(
+                f"test window {c:g}:{d:g} s overlaps the training window {a:g}:{b:g} s"
+            )
+        te = record.window(c, d)
+        span = record.window(a, float(te.t[-1]) + 0.5 * record.dt)
+        start = int(round((te.t[0] - span.t[0]) / record.dt))
+        test_idx = (start, start + te.n)
+    if substeps is None:
+        substeps = default_substeps(model, model.start_values(), record.dt, thetas=tr.y[:, 0])
+    return Problem(model=model, u=np.asarray(span.u), y=np.asarray(span.y), t=np.asarray(span.t),
+                   dt=float(record.dt), n_train=int(tr.n), test=test_idx, priors=priors,
+                   coords=coords, error=error, substeps=int(substeps),
+                   source=str(record.source))  # fmt: skip
+
+
+def fingerprint(problem: Problem) -> dict:
+    """What determines a problem's posterior, as JSON-able values: a sha256 of the record's
+    arrays, the windows, the model description, the priors, the error model, the
+    coordinates and the substeps.  Samplers store it to refuse resuming another problem."""
+    digest = hashlib.sha256()
+    for arr in (problem.u, problem.y, problem.t):
+        digest.update(np.ascontiguousarray(arr, dtype=np.float64).tobytes())
+    return {"data_sha256": digest.hexdigest(), "dt": problem.dt, "n_train": problem.n_train,
+            "test": None if problem.test is None else list(problem.test),
+            "model": json.dumps(problem.model.describe(), sort_keys=True),
+            "priors": json.dumps(problem.priors.to_json(), sort_keys=True),
+            "error": problem.error, "coordinates": problem.coords.resolved,
+            "substeps": problem.substeps}  # fmt: skip

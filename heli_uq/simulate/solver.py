@@ -1,0 +1,322 @@
+"""The simulator: exact zero-order-hold inputs, fixed-step RK4, discrete-adjoint gradients.
+
+Inputs are voltages held constant on each sample interval ``[t_k, t_k + dt)``.  The
+solver takes ``substeps`` classical Runge-Kutta steps inside every interval, so a
+step never straddles a switch of the input: each switch is treated exactly, with no
+smoothing and no adaptive step.  For the paper's model one RK4 step per interval of the
+rig record (dt = 0.01 s) is accurate to well below 1e-6 rad; stiff effects (sharp
+friction) need more substeps, see :func:`default_substeps` and
+:func:`heli_uq.simulate.reference_solve`.
+
+Gradients use a hand-built *discrete adjoint* (a :func:`jax.custom_vjp`): the
+forward pass stores only the states; the backward pass computes the sines and cosines of
+the pitch angle at every Runge-Kutta stage once (vectorised over time: in float64 on the
+CPU they are most of the cost), then all step Jacobians ``dy_{k+1}/dy_k`` at once
+re-using them, runs the cheap linear adjoint recursion
+``lam_k = c_k + A_k^T lam_{k+1}`` and gets the parameter and input cotangents from one
+time-vectorised VJP.  The result is the exact gradient of the discrete solution
+(checked against plain reverse-mode autodiff to ~1e-13).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Mapping
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jax import lax
+from jax.custom_derivatives import SymbolicZero
+from jax.flatten_util import ravel_pytree
+
+from heli_uq.errors import ParameterError
+from heli_uq.model.heli_model import HeliModel
+
+__all__ = ["simulate", "solve", "Solution", "RESULTS", "MAX_ABS_STATE", "MAX_SAMPLES",
+           "default_substeps", "STABLE_STEP"]  # fmt: skip
+
+#: A state component beyond this magnitude (rad or rad/s) counts as a blow-up.
+MAX_ABS_STATE = 1.0e4
+#: Largest number of solver steps (samples x substeps) one solve may take: 10 million
+#: steps store 0.3 GB of states and trigonometry, several minutes of work.
+MAX_SAMPLES = 10_000_000
+#: ``rate * h`` at which :func:`default_substeps` places an RK4 step: half the stability
+#: limit 2.785 of RK4 on a decaying mode, which keeps its settling error small.
+STABLE_STEP = 1.4
+
+
+class RESULTS(enum.IntEnum):
+    """Outcome codes of :func:`solve` (``Solution.result``)."""
+
+    successful = 0
+    #: NaN or inf in the solution: the parameters make the ODE singular (e.g. M22 <= 0).
+    nonfinite = 1
+    #: A state left ``|y| < MAX_ABS_STATE``: the model blew up for these parameters.
+    blow_up = 2
+
+
+class Solution(eqx.Module):
+    """A simulated trajectory on the sample grid.
+
+    Attributes
+    ----------
+    ts : array, shape (N,)
+        Sample times [s], ``ts[k] = k dt``.
+    ys : array, shape (N, 4)
+        States ``(theta, psi, omega_theta, omega_psi)`` [rad, rad, rad/s, rad/s] at ``ts``;
+        ``ys[0] = x0``.
+    result : int array, shape ()
+        A :class:`RESULTS` code; check :attr:`ok` before using ``ys``.
+    """
+
+    ts: jnp.ndarray
+    ys: jnp.ndarray
+    result: jnp.ndarray
+
+    @property
+    def ok(self):
+        """Boolean array: the solve succeeded (finite and bounded)."""
+        return self.result == RESULTS.successful
+
+
+@jax.custom_jvp
+def _sincos(theta):
+    """``(sin theta, cos theta)``, each computed once also under differentiation."""
+    return jnp.sin(theta), jnp.cos(theta)
+
+
+@_sincos.defjvp
+def _sincos_jvp(primals, tangents):
+    s, c = _sincos(primals[0])
+    return (s, c), (c * tangents[0], -s * tangents[0])
+
+
+@jax.custom_jvp
+def _cached_sincos(theta, s, c):
+    """``(sin theta, cos theta)`` taken from the forward pass, with the right derivative."""
+    return s, c
+
+
+@_cached_sincos.defjvp
+def _cached_sincos_jvp(primals, tangents):
+    _, s, c = primals
+    dtheta = tangents[0]
+    return (s, c), (c * dtheta, -s * dtheta)
+
+
+def _rk4_step(model, prepared, y, u, h, trig=None):
+    """One classical RK4 step of ``x' = v, v' = a(x, v, u)`` with ``u`` held.
+
+    Returns the new state (4,) and ``(sin, cos)`` of the pitch angle at the four stages,
+    shape (4, 2); ``trig`` (4, 2) replaces their computation when given.
+    """
+    x, v = y[:2], y[2:]
+
+    def acc(i, xi, vi):
+        if trig is None:
+            sc = _sincos(xi[0])
+        else:
+            sc = _cached_sincos(xi[0], trig[i, 0], trig[i, 1])
+        return model.acceleration(prepared, xi, vi, u, sc), jnp.stack(sc)
+
+    a1, t1 = acc(0, x, v)
+    v2 = v + 0.5 * h * a1
+    a2, t2 = acc(1, x + 0.5 * h * v, v2)
+    v3 = v + 0.5 * h * a2
+    a3, t3 = acc(2, x + 0.5 * h * v2, v3)
+    v4 = v + h * a3
+    a4, t4 = acc(3, x + h * v3, v4)
+    y_new = jnp.concatenate([x + (h / 6.0) * (v + 2.0 * v2 + 2.0 * v3 + v4),
+                             v + (h / 6.0) * (a1 + 2.0 * a2 + 2.0 * a3 + a4)])  # fmt: skip
+    return y_new, jnp.stack([t1, t2, t3, t4])
+
+
+def _make_trajectory(static_model, unravel, substeps: int):
+    """Build ``trajectory(args, us, y0) -> ys`` with a discrete-adjoint VJP.
+
+    ``args`` is the flat float64 vector of ``(dynamic model leaves, prepared parameters,
+    dt)`` (``unravel`` restores the pytree): one loop-invariant buffer instead of dozens
+    of scalars keeps the per-step kernel count, and so the run time, low.
+    ``us`` (N, 2); ``y0`` (4,).
+    """
+
+    def step_tree(args_tree, y, u, trig=None):
+        dyn_model, prepared, dt = args_tree
+        model = eqx.combine(dyn_model, static_model)
+        h = dt / substeps
+        stage_trig = []
+        for i in range(substeps):
+            y, t = _rk4_step(model, prepared, y, u, h, None if trig is None else trig[i])
+            stage_trig.append(t)
+        return y, jnp.stack(stage_trig)
+
+    # The scan bodies unravel the flat ``args`` themselves: closing over the unravelled
+    # leaves instead makes every step read dozens of scalar buffers (2-3x slower).
+    def forward(args, us, y0):
+        def body(y, u):
+            return step_tree(unravel(args), y, u)[0], y
+
+        return lax.scan(body, y0, us)[1]
+
+    @jax.custom_vjp
+    def trajectory(args, us, y0):
+        return forward(args, us, y0)
+
+    def fwd(args, us, y0):
+        # symbolic_zeros: the wrappers say which inputs are differentiated (``perturbed``).
+        ys = forward(args.value, us.value, y0.value)
+        return ys, (args.value, us.value, ys, us.perturbed)
+
+    def bwd(res, ct):
+        args, us, ys, us_perturbed = res
+        if isinstance(ct, SymbolicZero):  # the states do not enter the differentiated output
+            ct = jnp.zeros_like(ys)
+        y_prev, u_prev = ys[:-1], us[:-1]
+        tree = unravel(args)
+        # The stage sines and cosines of every step in one vectorised pass; the Jacobians
+        # and the VJP below re-use them.  Recomputing them inside each differentiated pass
+        # costs several times more: in float64 on the CPU they are most of the work.
+        trig_prev = jax.vmap(lambda y, u: step_tree(tree, y, u)[1])(y_prev, u_prev)
+
+        def cached_step(a_tree, y, u, tr):
+            return step_tree(a_tree, y, u, tr)[0]
+
+        # A_k = d y_{k+1} / d y_k for all k at once (vectorised over time).
+        jac = jax.vmap(jax.jacfwd(cached_step, argnums=1), in_axes=(None, 0, 0, 0))(
+            tree, y_prev, u_prev, trig_prev)
+
+        def adjoint(lam, inp):
+            a_k, c_k = inp
+            return c_k + a_k.T @ lam, lam
+
+        lam0, lam_next = lax.scan(adjoint, ct[-1], (jac, ct[:-1]), reverse=True)
+        # Parameter (and input) cotangents: sum_k (d y_{k+1} / d args)^T lam_{k+1}.
+        batched = jax.vmap(cached_step, in_axes=(None, 0, 0, 0))
+        if us_perturbed:
+            _, vjp = jax.vjp(lambda a, u: batched(a, y_prev, u, trig_prev), tree, u_prev)
+            d_tree, d_u = vjp(lam_next)
+            d_us = jnp.concatenate([d_u, jnp.zeros_like(us[-1:])], axis=0)
+        else:
+            (d_tree,) = jax.vjp(lambda a: batched(a, y_prev, u_prev, trig_prev), tree)[1](lam_next)
+            d_us = jnp.zeros_like(us)
+        return ravel_pytree(d_tree)[0], d_us, lam0
+
+    trajectory.defvjp(fwd, bwd, symbolic_zeros=True)
+    return trajectory, forward
+
+
+def _check_inputs(x0, u, substeps, gradients):
+    if gradients not in ("adjoint", "autodiff"):
+        raise ParameterError(f"gradients: expected 'adjoint' or 'autodiff', found {gradients!r}")
+    x0 = jnp.asarray(x0, dtype=jnp.float64)
+    u = jnp.asarray(u, dtype=jnp.float64)
+    if x0.shape != (4,):
+        raise ParameterError(
+            f"x0: expected 4 values (theta, psi, omega_theta, omega_psi), found shape {x0.shape}"
+        )
+    if u.ndim != 2 or u.shape[1] != 2 or u.shape[0] < 1:
+        raise ParameterError(f"u: expected shape (N, 2) volts with N >= 1, found {u.shape}")
+    if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1:
+        raise ParameterError(f"substeps: expected a positive integer, found {substeps!r}")
+    if u.shape[0] * substeps > MAX_SAMPLES:
+        raise ParameterError(f"u: {u.shape[0]} samples x {substeps} substeps exceed the limit of "
+                             f"{MAX_SAMPLES:,} solver steps per solve (shorten the record or "
+                             "raise the sample time)")  # fmt: skip
+    return x0, u
+
+
+def solve(
+    params: Mapping | None,
+    x0,
+    u,
+    dt,
+    *,
+    model: HeliModel | None = None,
+    substeps: int = 1,
+    gradients: str = "adjoint",
+) -> Solution:
+    """Simulate and report success: the entry point for code that must not fail.
+
+    Parameters
+    ----------
+    params : mapping
+        Parameter values by name [SI]; missing names take the model's defaults (Table 2
+        for the mechanics, "no effect" for effects).  Values may be traced (``jit``,
+        ``grad``, ``vmap``).
+    x0 : array, shape (4,)
+        Initial state (theta, psi, omega_theta, omega_psi) [rad, rad, rad/s, rad/s].
+    u : array, shape (N, 2)
+        Voltages (u_theta, u_psi) [V]; ``u[k]`` is held on ``[t_k, t_k + dt)``.
+    dt : float
+        Sample time [s].
+    model : HeliModel, optional
+        Default: the paper's model (closed-form mechanics, ``F = K u - D v``).
+    substeps : int
+        RK4 steps per sample interval (default 1; see :func:`default_substeps`).
+    gradients : {"adjoint", "autodiff"}
+        ``"adjoint"`` (default): reverse mode (``jax.grad``, ``jax.vjp``, ``jax.jacrev``)
+        through the fast discrete adjoint.  ``"autodiff"``: plain JAX differentiation of
+        the time loop, which also supports forward mode (``jax.jvp``, ``jax.jacfwd``).
+
+    Returns
+    -------
+    Solution
+        ``ys`` of shape (N, 4) and a :class:`RESULTS` code.  Failure never raises and
+        never hangs (fixed number of steps), so a sampler can reject the proposal.
+
+    Raises
+    ------
+    ParameterError
+        Bad shapes, unknown parameter names, values outside their support, or more than
+        :data:`MAX_SAMPLES` solver steps.
+    """
+    x0, u = _check_inputs(x0, u, substeps, gradients)
+    model = HeliModel() if model is None else model
+    p = model.complete(params)
+    dyn_model, static_model = eqx.partition(model, eqx.is_array)
+    prepared = model.prepare(p)
+    dt = jnp.asarray(dt, dtype=jnp.float64)
+    args, unravel = ravel_pytree((dyn_model, prepared, dt))
+    adjoint, plain = _make_trajectory(static_model, unravel, substeps)
+    ys = (adjoint if gradients == "adjoint" else plain)(args, u, x0)
+    finite = jnp.all(jnp.isfinite(ys))
+    bounded = jnp.all(jnp.abs(jnp.where(finite, ys, 0.0)) < MAX_ABS_STATE)
+    result = jnp.where(
+        finite, jnp.where(bounded, RESULTS.successful, RESULTS.blow_up), RESULTS.nonfinite
+    )
+    ts = jnp.arange(u.shape[0]) * dt
+    return Solution(ts=ts, ys=ys, result=result)
+
+
+def simulate(params: Mapping | None, x0, u, dt, *, model: HeliModel | None = None,
+             substeps: int = 1, gradients: str = "adjoint"):  # fmt: skip
+    """States on the sample grid, shape (N, 4); differentiable and jit-able.
+
+    Same arguments as :func:`solve`; returns ``solve(...).ys``.  Use :func:`solve`
+    when you need to know whether the solve failed (NaN or blow-up).
+
+    Examples
+    --------
+    >>> import heli_uq, jax, jax.numpy as jnp
+    >>> u = jnp.ones((100, 2))
+    >>> ys = heli_uq.simulate(heli_uq.TABLE1, [0.0, 0.0, 0.0, 0.0], u, 0.01)
+    >>> ys.shape
+    (100, 4)
+    """
+    return solve(params, x0, u, dt, model=model, substeps=substeps, gradients=gradients).ys
+
+
+def default_substeps(model: HeliModel, params: Mapping, dt: float, *, margin: float = 1.0,
+                     thetas=None) -> int:  # fmt: skip
+    """RK4 substeps per sample for ``model`` at ``params``: ``ceil(margin rate dt / 1.4)``.
+
+    ``rate`` is the model's largest stiffness rate near rest (:meth:`HeliModel.stiffness`,
+    e.g. ``F_c / (omega_s M22)`` for smoothed friction, with ``M22`` the smallest yaw
+    inertia over the pitch angles ``thetas`` [rad], default all) and 1.4
+    (:data:`STABLE_STEP`) is half RK4's stability limit on a decaying mode.  1 for models
+    without stiff terms.
+    """
+    rate = model.stiffness(model.complete(params), thetas)
+    return max(1, math.ceil(margin * rate * float(dt) / STABLE_STEP))

@@ -1,0 +1,56 @@
+"""Shared bits of the study scripts: the provenance of a result and JSON-lines output.
+
+Every study appends one JSON object per run (or per measured case) to a ``.jsonl`` file
+under ``studies/results/``; :func:`provenance` gives the fields every such line carries
+(package and JAX versions, the command line, the wall time [s], the date, the CPU count).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import sys
+import time
+
+import numpy as np
+
+#: Directory of the study results (JSON lines, summaries).
+RESULTS = pathlib.Path(__file__).resolve().parent / "results"
+#: Directory of the study figures.
+FIGURES = pathlib.Path(__file__).resolve().parent / "figures"
+
+
+def provenance(script: str, argv, wall_s: float) -> dict:
+    """Fields every result line carries.
+
+    Parameters
+    ----------
+    script : str
+        The study's file (``__file__``); its name is recorded.
+    argv : list of str or None
+        The arguments given to ``main`` (None: ``sys.argv[1:]``).
+    wall_s : float
+        Wall time of the run [s].
+
+    The package version is ``heli_uq.__version__`` (the installed metadata of an editable
+    install may lag behind it).
+    """
+    import jax
+
+    import heli_uq
+
+    argv = sys.argv[1:] if argv is None else list(argv)
+    return {"heli_uq": heli_uq.__version__, "jax": jax.__version__,
+            "argv": [pathlib.Path(script).name, *argv], "wall_s": float(wall_s),
+            "time": time.strftime("%Y-%m-%dT%H:%M:%S"), "cpu_count": os.cpu_count()}  # fmt: skip
+
+
+def append_jsonl(path, row: dict) -> pathlib.Path:
+    """Append ``row`` as one JSON line to ``path`` (created with its directory if missing);
+    numpy values are written as plain numbers and lists."""
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a", encoding="utf-8") as fh:
+        fh.write(json.dumps(row, default=lambda o: np.asarray(o).tolist()) + "\n")
+    return path

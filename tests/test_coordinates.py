@@ -1,0 +1,172 @@
+"""Sampling coordinates: round trips, the invariances they make explicit, the prior Jacobian."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from heli_uq import TABLE1, simulate
+from heli_uq.model import HeliModel, parse_effects
+from heli_uq.probability import Coordinates, PriorSet
+
+INVARIANCE_ATOL = 1e-9  # rad: angles unchanged along an unidentified coordinate
+JACOBIAN_RTOL = 1e-6
+
+
+BASE = HeliModel()
+#: Every effect of the vocabulary once, so each kind of coordinate (ratio to M11 or M22,
+#: log or linear, unscaled) appears.
+EFFECTS = parse_effects("pitch:deadband,yaw:coulomb_friction,yaw:quadratic_drag,"
+                        "yaw:torsional_spring,pitch:quadratic_thrust,yaw:torque_offset")
+EFFECT_VALUES = {"h": 0.005, "delta_pitch": 0.2, "F_c_yaw": 0.004, "c_yaw": 0.002, "k_yaw": 0.003,
+                 "psi_0_yaw": 0.8, "k_q_pitch": -0.01, "T_0_yaw": 0.002}  # fmt: skip
+
+
+def _priors(model, **changes):
+    return PriorSet.default(model).updated(model, changes).params
+
+
+@pytest.fixture(params=["h_free", "h_free_pitched", "h_zero", "log", "effects", "effects_log"])
+def coords(request):
+    if request.param == "h_free":
+        return Coordinates(BASE, _priors(BASE))
+    if request.param == "h_free_pitched":
+        return Coordinates(BASE, _priors(BASE), yaw_theta_ref=0.3)
+    if request.param == "h_zero":
+        return Coordinates(BASE, _priors(BASE, h=0.0))
+    if request.param == "effects":
+        return Coordinates(EFFECTS, _priors(EFFECTS), yaw_theta_ref=-0.3)
+    if request.param == "effects_log":
+        return Coordinates(EFFECTS, _priors(EFFECTS), "log")
+    return Coordinates(BASE, _priors(BASE), "log")
+
+
+def _params(coords):
+    p = dict(TABLE1)
+    if coords.model is EFFECTS:
+        p.update(EFFECT_VALUES)
+    if not coords.priors["h"].free:
+        p["h"] = 0.0
+    return p
+
+
+def test_round_trip(coords):
+    p = _params(coords)
+    back = coords.to_physical(jnp.asarray(coords.from_physical(p)))
+    for k, v in p.items():
+        assert abs(float(back[k]) - v) <= 1e-12 * max(1.0, abs(v)), k
+
+
+def _angles(coords, z, u):
+    return simulate(coords.to_physical(z), jnp.array([-0.5, 0.0, 0.3, -0.2]), u, 0.01,
+                    model=coords.model, substeps=2)[:, :2]  # fmt: skip
+
+
+def test_unidentified_coordinates_leave_the_angles_unchanged(coords):
+    rng = np.random.default_rng(0)
+    u = jnp.asarray(np.repeat(rng.uniform([1.2, 0.6], [1.42, 1.2], (6, 2)), 50, axis=0))
+    z = jnp.asarray(coords.from_physical(_params(coords)))
+    base = _angles(coords, z, u)
+    expected = {"h_free": ("log_J_pitch",), "h_zero": ("log_J_pitch", "logit_body_fraction")}
+    assert set(coords.unidentified) == set(expected.get(
+        "h_free" if coords.resolved == "identifiable" and coords.priors["h"].free else
+        "h_zero" if coords.resolved == "identifiable" else "none", ()))  # fmt: skip
+    for name in coords.unidentified:
+        i = coords.names.index(name)
+        moved = _angles(coords, z.at[i].add(0.7), u)
+        assert float(jnp.max(jnp.abs(moved - base))) < INVARIANCE_ATOL
+    # ...while every identified coordinate does change them.
+    for i, name in enumerate(coords.names):
+        if name not in coords.unidentified:
+            moved = _angles(coords, z.at[i].add(0.05), u)
+            assert float(jnp.max(jnp.abs(moved - base))) > 1e3 * INVARIANCE_ATOL, name
+
+
+def test_log_prior_includes_the_change_of_variables(coords):
+    """log p(z) - sum log p_w(w(z)) equals log|det dw/dz|, computed here by finite differences."""
+    z = np.asarray(coords.from_physical(_params(coords)))
+
+    def w_of(zz):
+        phys = coords.to_physical(jnp.asarray(zz))
+        return np.array([float(coords.priors[n].to_coordinate(phys[n])) for n in coords.free])
+
+    eps = 1e-6
+    jac = np.column_stack([(w_of(z + eps * e) - w_of(z - eps * e)) / (2 * eps)
+                           for e in np.eye(z.size)])  # fmt: skip
+    w = w_of(z)
+    base = sum(float(coords.priors[n].log_density_coordinate(w[i]))
+               for i, n in enumerate(coords.free))  # fmt: skip
+    expected = base + np.linalg.slogdet(jac)[1]
+    got = float(coords.log_prior(jnp.asarray(z)))
+    assert abs(got - expected) < JACOBIAN_RTOL * max(1.0, abs(expected))
+    assert np.isfinite(float(jax.grad(coords.log_prior)(jnp.asarray(z)).sum()))
+
+
+def test_coordinates_of_effects_follow_their_declarations():
+    """Scaled effect parameters get a ratio coordinate (to M22 on yaw, to M11 on pitch),
+    unscaled ones their prior's own coordinate; no Table 2 name is needed for that."""
+    coords = Coordinates(EFFECTS, _priors(EFFECTS))
+    assert coords.resolved == "identifiable"
+    for name in ("log_F_c_yaw_ratio", "log_c_yaw_ratio", "log_k_yaw_ratio", "T_0_yaw_ratio",
+                 "k_q_pitch_ratio", "log_delta_pitch", "psi_0_yaw"):  # fmt: skip
+        assert name in coords.names, name
+    # a fixed scaled parameter breaks the scaling symmetry: plain coordinates instead
+    fixed = Coordinates(EFFECTS, _priors(EFFECTS, F_c_yaw=0.004))
+    assert fixed.resolved == "log" and fixed.unidentified == ()
+
+
+@pytest.mark.parametrize("model", [BASE, EFFECTS], ids=["paper", "effects"])
+def test_scale_is_integrated_out_exactly(model):
+    """log p(z_rest) = log of the integral over log M11 of p(z), by quadrature; and the
+    conditional of log M11 is the Gaussian the model draws from (exactly so when every
+    scaled prior is log-normal; with half-normal and normal effect priors the remainder is
+    evaluated at the drawn scale, and the joint density is still exact)."""
+    coords = Coordinates(model, _priors(model))
+    values = dict(TABLE1, **(EFFECT_VALUES if model is EFFECTS else {}))
+    z = jnp.asarray(coords.from_physical(values))
+    # the joint density of (z_rest, eps) is p(z_rest, s) ds/deps at s = mean + sd eps
+    _, mean, sd = coords.scale_conditional(z[1:])
+    for eps in (-1.3, 0.0, 0.8):
+        lp, z_full = coords.marginal_log_prior(z[1:], jnp.asarray(eps))
+        joint = float(lp) - 0.5 * eps**2 - 0.5 * np.log(2 * np.pi)
+        direct = float(coords.log_prior(z_full)) + np.log(float(sd))
+        assert abs(joint - direct) < 1e-9, (eps, joint, direct)
+    if model is EFFECTS:
+        return
+    # only log-normal scaled priors: the rest of the prior does not depend on the scale, so
+    # the marginal is exact for any eps, and log M11 | z_rest is exactly Gaussian.
+    log_marginal = coords.marginal_log_prior(z[1:], jnp.asarray(0.3))[0]
+    grid = np.linspace(float(mean) - 12 * float(sd), float(mean) + 12 * float(sd), 801)
+    log_prior = jax.jit(jax.vmap(lambda s: coords.log_prior(z.at[0].set(s))))
+    logp = np.asarray(log_prior(jnp.asarray(grid)))
+    peak = logp.max()
+    quad = peak + np.log(np.trapezoid(np.exp(logp - peak), grid))
+    assert abs(quad - float(log_marginal)) < 1e-6
+    # the conditional: log p(z) - log p(z_rest) is the Gaussian log density of log M11
+    s = float(mean) + 0.7 * float(sd)
+    cond = float(coords.log_prior(z.at[0].set(s))) - float(log_marginal)
+    gauss = -0.5 * 0.7**2 - np.log(float(sd)) - 0.5 * np.log(2 * np.pi)
+    assert abs(cond - gauss) < 1e-9
+
+
+def test_yaw_gains_are_relative_to_the_yaw_inertia_at_the_reference_pitch():
+    """At theta = yaw_theta_ref and omega_theta = 0 the yaw acceleration depends on the
+    yaw-gain coordinates only: moving log_J_s_ratio (which changes M22) leaves it fixed,
+    while the pitch acceleration (torques relative to M11) is unchanged too."""
+    theta_ref = -0.4
+    coords = Coordinates(BASE, _priors(BASE), yaw_theta_ref=theta_ref)
+    z = jnp.asarray(coords.from_physical(TABLE1))
+    i = coords.names.index("log_J_s_ratio")
+    y = jnp.array([theta_ref, 0.3, 0.0, 0.7])
+    u = jnp.array([1.3, 0.9])
+
+    def accel(zz, state=y):
+        return BASE(0.0, state, (coords.to_physical(zz), u))[2:]
+
+    base = accel(z)
+    moved = accel(z.at[i].add(1.5))
+    np.testing.assert_allclose(moved, base, rtol=1e-12)
+    # away from the reference pitch the same move does change the yaw acceleration
+    y_off = y.at[0].set(theta_ref + 0.6)
+    off, off_moved = accel(z, y_off)[1], accel(z.at[i].add(1.5), y_off)[1]
+    assert abs(float(off_moved - off)) > 1e-3 * abs(float(off))

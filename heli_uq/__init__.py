@@ -7,7 +7,7 @@ from the ones before it (``tests/test_layout.py`` checks this)::
     data/                   rig records (Experiment, the published CSV, the real record)
     model/                  mechanics, torque terms, named effects, parameters, priors
     model/terms/            one file per term (a new effect is one new file there)
-    simulate/               fixed-step RK4 with discrete adjoint, diffrax reference, synthetic records
+    simulation/             fixed-step RK4 with discrete adjoint, diffrax reference, synthetic records
     probability/            priors, sampling coordinates, error models, the likelihood, numpyro model
     inference/              MAP, Laplace, NUTS, emcee, checkpoints
     identifiability/        structural, practical and Bayesian identifiability report
@@ -38,12 +38,12 @@ from heli_uq.model import parse_effects as parse_effects
 from heli_uq.probability import PriorSet as PriorSet
 from heli_uq.probability import loss_v as loss_v
 from heli_uq.probability import make_problem as make_problem
-from heli_uq.simulate import RESULTS as RESULTS
-from heli_uq.simulate import Solution as Solution
-from heli_uq.simulate import reference_solve as reference_solve
-from heli_uq.simulate import simulate as simulate
-from heli_uq.simulate import solve as solve
-from heli_uq.simulate import synthetic_experiment as synthetic_experiment
+from heli_uq.simulation import RESULTS as RESULTS
+from heli_uq.simulation import Solution as Solution
+from heli_uq.simulation import reference_solve as reference_solve
+from heli_uq.simulation import simulate as simulate
+from heli_uq.simulation import solve as solve
+from heli_uq.simulation import synthetic_experiment as synthetic_experiment
 
 __all__ = [
     "Experiment", "load_data", "DataFormatError", "HeliUQError", "ParameterError", "EFFECTS",

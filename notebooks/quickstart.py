@@ -9,8 +9,8 @@ import jax
 import jax.numpy as jnp
 
 import heli_uq
-from heli_uq.simulate import default_substeps
-from heli_uq.simulate.reference import solver_error
+from heli_uq.simulation import default_substeps
+from heli_uq.simulation.reference import solver_error
 
 try:
     exp = heli_uq.load_data("experimental")  # HELI_UQ_DATA or a checked download

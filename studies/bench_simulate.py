@@ -19,7 +19,7 @@ angles, zero rates):
   (forward and gradient);
 * the same forward / gradient / ratio for two models with one yaw effect:
   ``yaw:coulomb_friction`` with ``F_c_yaw`` = 0.004 N m (stiff: at the substeps
-  :func:`heli_uq.simulate.default_substeps` gives over the record's pitch angles, as
+  :func:`heli_uq.simulation.default_substeps` gives over the record's pitch angles, as
   :func:`heli_uq.probability.make_problem` does) and ``yaw:torque_offset`` with
   ``T_0_yaw`` = 0.002 N m (smooth: 1 substep);
 * accuracy: max angle error [rad] vs the DOP853 reference of ``tests/reference.py``
@@ -47,7 +47,7 @@ from scipy.integrate import solve_ivp
 import heli_uq
 from heli_uq.data import load_data
 from heli_uq.model import TABLE1, parse_effects
-from heli_uq.simulate import default_substeps
+from heli_uq.simulation import default_substeps
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))

@@ -3,7 +3,7 @@
 For each named effect (``--effects``) on an axis (``--axis``, default yaw) and each truth
 of the paper's parameters (``--truths``: ``table1``, the paper's fit, and ``table2``, the
 nominal values the priors are centred on), a record is simulated by the *adaptive stiff
-reference solver* (diffrax Kvaerno5, :func:`heli_uq.simulate.reference_solve`: an
+reference solver* (diffrax Kvaerno5, :func:`heli_uq.simulation.reference_solve`: an
 independent solver, not the fixed-step one the model uses) on a random voltage staircase in
 the rig's ranges, with iid noise; the model with that effect is fitted with the package's
 MAP and NUTS (iid errors), and the 95 % intervals of each effect parameter and of its ratio
@@ -35,7 +35,7 @@ from heli_uq.inference import prepare_start, run_nuts  # noqa: E402
 from heli_uq.model import EFFECTS, TABLE1, TABLE2, build_model  # noqa: E402
 from heli_uq.model.terms.rigid_body import pitch_inertia, yaw_inertia  # noqa: E402
 from heli_uq.probability import make_problem  # noqa: E402
-from heli_uq.simulate import reference_solve, synthetic_experiment  # noqa: E402
+from heli_uq.simulation import reference_solve, synthetic_experiment  # noqa: E402
 
 #: Hidden values of each effect's parameters, by bare name [SI] (as in tests/test_effects.py).
 EFFECT_VALUES = {

@@ -4,7 +4,7 @@ For each replicate ``r``: draw the paper's 12 parameters from the study prior (l
 sigma_log ``--prior-sd`` around Table 1; h ~ normal(0, ``--h-sd``); g fixed), one residual
 scale [rad] for both angles from the model's ``sigma`` prior
 (:data:`heli_uq.probability.priors.SIGMA_PRIOR`), simulate a ``--duration`` s record with
-random step inputs (:func:`heli_uq.simulate.synthetic_experiment`) and iid noise, run the
+random step inputs (:func:`heli_uq.simulation.synthetic_experiment`) and iid noise, run the
 package's NUTS (MAP start, Laplace mass matrix) under the *same* parameter prior, and
 record the rank of the true value of every sampled coordinate (the identifiable ratios of
 :mod:`heli_uq.probability.coordinates`) among ``--ranks`` thinned draws, and whether the
@@ -69,7 +69,7 @@ from heli_uq.io import atomic_write_text
 from heli_uq.model import TABLE1, HeliModel, Prior
 from heli_uq.probability import PriorSet, make_problem
 from heli_uq.probability.priors import SIGMA_PRIOR, X0_ANGLE_SD, X0_RATE_SD
-from heli_uq.simulate import SYNTHETIC_X0, synthetic_experiment
+from heli_uq.simulation import SYNTHETIC_X0, synthetic_experiment
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from _study import provenance  # noqa: E402

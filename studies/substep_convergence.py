@@ -7,9 +7,9 @@ and the paper's Table 1 for the other parameters, simulate the rig record's volt
 (``--seconds`` from its start, default the full 131 s) from the first measured angles at
 rest, and report
 
-* the max angle error [rad] of :func:`heli_uq.simulate.simulate` against the adaptive
-  stiff reference :func:`heli_uq.simulate.reference_solve` (diffrax Kvaerno5, rtol = atol
-  = 1e-10 unless ``--rtol``), i.e. :func:`heli_uq.simulate.reference.solver_error`, for
+* the max angle error [rad] of :func:`heli_uq.simulation.simulate` against the adaptive
+  stiff reference :func:`heli_uq.simulation.reference_solve` (diffrax Kvaerno5, rtol = atol
+  = 1e-10 unless ``--rtol``), i.e. :func:`heli_uq.simulation.reference.solver_error`, for
   1, 2, 4, 8 and 16 RK4 substeps per sample and at ``default_substeps(model, values, dt,
   margin=2.0, thetas=reference pitch)`` (the margin the MAP stage uses);
 * the wall time [ms] of one jitted forward solve at each substep count (median of
@@ -51,8 +51,8 @@ from heli_uq.figure import new_figure, save_figure
 from heli_uq.io import atomic_write_text
 from heli_uq.model import AXES, EFFECTS, TABLE1, build_model
 from heli_uq.output.posterior_study import SOLVER_TOL
-from heli_uq.simulate import default_substeps, reference_solve, simulate
-from heli_uq.simulate.reference import REFERENCE_RTOL
+from heli_uq.simulation import default_substeps, reference_solve, simulate
+from heli_uq.simulation.reference import REFERENCE_RTOL
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from _study import FIGURES, RESULTS, provenance  # noqa: E402

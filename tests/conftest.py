@@ -7,6 +7,13 @@ import jax
 import pytest
 
 jax.config.update("jax_enable_x64", True)
+# Many tests compile the same programs (one NUTS kernel per run, a resumed run, the CLI):
+# a persistent XLA cache shared by the test processes compiles each once.  Entries are
+# keyed by the program, JAX version and flags, so a stale entry is never used.
+jax.config.update("jax_compilation_cache_dir",
+                  str(pathlib.Path(__file__).resolve().parents[1] / ".pytest_cache" / "jax"))
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 _SHARED_DATA = REPO.parent / "shared" / "data"
@@ -22,7 +29,7 @@ SYNTHETIC_NOISE = 0.003  # rad: the true residual sd of the shared synthetic rec
 @pytest.fixture(scope="session")
 def synthetic_problem():
     from heli_uq.probability import make_problem
-    from heli_uq.simulate import synthetic_experiment
+    from heli_uq.simulation import synthetic_experiment
 
     record = synthetic_experiment(duration=4.0, seed=1, noise_std=(SYNTHETIC_NOISE,) * 2)
     return make_problem(record, error="iid")

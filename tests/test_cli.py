@@ -28,7 +28,7 @@ PUBLISHED_HEADER = (
     r"Yaw angle $\psi$ [rad],Sample time $\Delta t$ [s]"
 )
 
-# Paper Table 2, written out here independently of heli_uq.params.
+# Paper Table 2, written out here independently of heli_uq.model.tables.
 J_BC, M, R_C, H, J_S = 0.015, 0.5, 0.015, 0.0, 0.005
 TABLE3_X0 = (math.pi / 4, 0.0, -0.1, 0.1)
 

@@ -1,5 +1,5 @@
 """Tests of heli_uq.data (CSV reading/writing, windows, decimation, loaders) and of the
-synthetic records of heli_uq.simulate."""
+synthetic records of heli_uq.simulation."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from heli_uq.data import (
     read_record,
 )
 from heli_uq.errors import DataFormatError, ParameterError
-from heli_uq.simulate.synthetic import (
+from heli_uq.simulation.synthetic import (
     STEP_HOLD,
     STEP_RANGES,
     SYNTHETIC_PARAMS,

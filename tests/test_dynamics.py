@@ -25,7 +25,7 @@ from heli_uq.model.terms.rigid_body import (
     dl_dx,
 )
 from heli_uq.model.terms.rigid_body import mass_matrix as closed_form_mass_matrix
-from heli_uq.simulate import simulate
+from heli_uq.simulation import simulate
 
 EOM_AGREEMENT = 1e-10  # closed form vs autodiff, relative to the acceleration scale
 ENERGY_DRIFT = 1e-8  # relative drift of K + P over 20 s with u = 0, D = 0

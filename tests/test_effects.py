@@ -23,8 +23,8 @@ from heli_uq.model import (
     parse_effects,
     total_energy,
 )
-from heli_uq.simulate import default_substeps, reference_solve, simulate, solve
-from heli_uq.simulate.reference import solver_error
+from heli_uq.simulation import default_substeps, reference_solve, simulate, solve
+from heli_uq.simulation.reference import solver_error
 
 #: One value per effect parameter: large enough to matter on a record, physically plausible.
 EFFECT_VALUES = {
@@ -283,24 +283,26 @@ def test_model_description_round_trips():
 
 # ------------------------------------------------------------------ every stage
 
-#: Two models that together hold every effect once, with no two constant torques on one axis.
-PIPELINE_MODELS = {"A": ("pitch:deadband", "yaw:coulomb_friction", "yaw:quadratic_drag",
-                         "pitch:torque_offset"),
-                   "B": ("yaw:torsional_spring", "yaw:quadratic_thrust")}  # fmt: skip
+#: One model with every effect once, with no two constant torques on one axis (one model:
+#: compiling the sampler for it is most of this test's time).  Friction is smoothed over
+#: 0.02 rad/s: on a 1.5 s record the MAP's friction level is poorly determined, and a
+#: sharp one would need many substeps (slow to compile).
+PIPELINE_MODEL = ("pitch:deadband", {"effect": "coulomb_friction", "axis": "yaw", "omega_s": 0.02},
+                  "yaw:quadratic_drag", "pitch:torque_offset", "yaw:torsional_spring",
+                  "yaw:quadratic_thrust")  # fmt: skip
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("key", sorted(PIPELINE_MODELS))
-def test_every_effect_runs_through_every_stage(key, tmp_path):
+def test_every_effect_runs_through_every_stage(tmp_path):
     """solve, the numpyro model, the MAP, NUTS, the results and identifiability all take a
     model with effects and name its parameters with their axes (a run-through at small
     sizes; the statistics are checked by the recovery test below and tests/test_posterior)."""
     from heli_uq.inference import prepare_start, run_nuts
     from heli_uq.output import to_inference_data
     from heli_uq.probability import make_problem
-    from heli_uq.simulate import synthetic_experiment
+    from heli_uq.simulation import synthetic_experiment
 
-    model = parse_effects(",".join(PIPELINE_MODELS[key]))
+    model = build_model(list(PIPELINE_MODEL))
     truth = _values(model)
     record = synthetic_experiment(truth, (-0.5, 0.3, 0.0, 0.0), inputs=_rig_like_inputs(1.5, 5),
                                   noise_std=(0.005, 0.005), seed=6, model=model)  # fmt: skip
@@ -318,12 +320,15 @@ def test_every_effect_runs_through_every_stage(key, tmp_path):
         assert name in idata.prior
     assert np.all(np.isfinite(np.asarray(idata.log_likelihood["y"])))
     assert "effects" in idata.posterior.attrs["model"]
-    # identifiability (at the truth, a generic point): only the common scaling is null
+    # identifiability at the truth: the common scaling, derived from the declarations, is
+    # a null direction of the sensitivities (on a 1.5 s record there are others too, e.g.
+    # a dead band the voltage never drops below acts as constant torques; the rank of a
+    # rich record is checked by test_null_direction_from_the_declarations_matches_the_svd)
     free = [n for n in model.names if n != "g"]
     pv = ParameterVector(model, free, dict(truth, h=0.004), substeps=run.problem.substeps)
     w = pv.from_model(pv.base, (-0.5, 0.3, 0.0, 0.0))
     st = structural_analysis(pv, [w], record.u, record.dt)
-    assert st.rank == pv.dim - 1
+    assert st.rank < pv.dim
     assert _distance_to(st.null_basis, scaling_direction(pv, w)) < 1e-8
 
 
@@ -348,7 +353,7 @@ def test_hidden_effect_is_recovered(kind):
     from heli_uq.inference.density import constrain_draws
     from heli_uq.model.terms.rigid_body import yaw_inertia
     from heli_uq.probability import make_problem
-    from heli_uq.simulate import synthetic_experiment
+    from heli_uq.simulation import synthetic_experiment
 
     model = build_model([f"yaw:{kind}"])
     truth = _values(model)

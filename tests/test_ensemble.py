@@ -11,7 +11,7 @@ from heli_uq.inference import emcee_sampler as ensemble
 from heli_uq.inference import run_emcee
 from heli_uq.inference.checkpoint import Checkpoint
 from heli_uq.inference.density import coordinate_names
-from heli_uq.simulate import SYNTHETIC_PARAMS
+from heli_uq.simulation import SYNTHETIC_PARAMS
 
 NOISE_STD = 0.003  # rad, the truth of sigma
 #: The posterior mean of an identified quantity lies within this many posterior sd of the truth.

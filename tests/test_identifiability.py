@@ -18,7 +18,7 @@ from heli_uq.identifiability.structural import (
     structural_analysis,
 )
 from heli_uq.model import TABLE1, HeliModel
-from heli_uq.simulate import simulate, synthetic_experiment
+from heli_uq.simulation import simulate, synthetic_experiment
 
 #: Invariances are exact in exact arithmetic: simulations along them agree to round-off.
 INVARIANCE_TOL = 1e-10

@@ -1,4 +1,4 @@
-"""The package layout: one folder per stage, imports one way (data -> model -> simulate ->
+"""The package layout: one folder per stage, imports one way (data -> model -> simulation ->
 probability -> inference -> identifiability -> output -> cli), curated ``__all__``."""
 
 import ast
@@ -12,7 +12,7 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "heli_uq"
 #: or lower ones.  ``heli_uq/__init__.py`` (the curated facade) is exempt.
 LAYERS = {
     "_jax_config": 0, "errors": 0, "io": 0, "figure": 0,
-    "data": 1, "model": 2, "simulate": 3, "probability": 4, "inference": 5,
+    "data": 1, "model": 2, "simulation": 3, "probability": 4, "inference": 5,
     "identifiability": 6, "output": 7, "cli": 8,
 }  # fmt: skip
 
@@ -68,7 +68,7 @@ def test_the_check_catches_an_upward_import(tmp_path):
     assert [t for _, t in _imports(bad)] == ["heli_uq.output.plots"]
 
 
-@pytest.mark.parametrize("package", ["heli_uq", "heli_uq.data", "heli_uq.model", "heli_uq.simulate",
+@pytest.mark.parametrize("package", ["heli_uq", "heli_uq.data", "heli_uq.model", "heli_uq.simulation",
                                      "heli_uq.probability", "heli_uq.inference",
                                      "heli_uq.identifiability", "heli_uq.output"])  # fmt: skip
 def test_curated_api(package):
@@ -76,6 +76,18 @@ def test_curated_api(package):
     missing = [n for n in module.__all__ if not hasattr(module, n)]
     assert not missing, missing
     assert len(set(module.__all__)) == len(module.__all__)
+
+
+def test_no_exported_name_shadows_a_subpackage():
+    """``import heli_uq.<stage>.<module> as m`` must reach the module: a function exported
+    under a subpackage's name (``heli_uq.simulate`` once was both) breaks that import."""
+    import types
+
+    import heli_uq
+
+    for sub in sorted(p.name for p in PACKAGE.iterdir() if (p / "__init__.py").exists()):
+        importlib.import_module(f"heli_uq.{sub}")
+        assert isinstance(getattr(heli_uq, sub), types.ModuleType), sub
 
 
 def _string_constants(path):

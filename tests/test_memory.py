@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from heli_uq.simulate import synthetic_experiment
+from heli_uq.simulation import synthetic_experiment
 
 #: Peak resident memory [MB] a default emcee run on a short window may use (the issue's
 #: goal for the full record is 4 GB; this run's draws are as many as on the full record).

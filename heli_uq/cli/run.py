@@ -28,7 +28,7 @@ def _record_for_run(spec: str, out: Path):
     """The record of ``run``; falls back to the synthetic default when the real one is
     not available."""
     from heli_uq.data import load_data
-    from heli_uq.simulate.synthetic import synthetic_experiment
+    from heli_uq.simulation.synthetic import synthetic_experiment
 
     if spec != "synthetic":
         try:

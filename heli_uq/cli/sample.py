@@ -78,7 +78,7 @@ def add_parser(subparsers):
             "started from the Laplace covariance, in identifiable coordinates."
         ),
         epilog=(
-            "priors (defaults: see heli_uq.priors): --prior m=lognormal:0.5:1.0,\n"
+            "priors (defaults: see heli_uq.probability.priors): --prior m=lognormal:0.5:1.0,\n"
             "  --prior h=normal:0:0.01, --fix h=0, or --priors FILE.json with\n"
             '  {"m": {"lognormal": [0.5, 1.0]}, "h": {"fixed": 0}}\n\n'
             "examples:\n"

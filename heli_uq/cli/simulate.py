@@ -107,7 +107,7 @@ def simulate_to_files(out: Path, params: dict, x0, u, dt: float, *, model=None, 
     from heli_uq.model.heli_model import HeliModel
     from heli_uq.output.plots import plot_simulation, save_figure
     from heli_uq.probability.likelihood import loss_v
-    from heli_uq.simulate.solver import RESULTS, default_substeps, solve
+    from heli_uq.simulation.solver import RESULTS, default_substeps, solve
 
     model = HeliModel() if model is None else model
     params = {k: float(v) for k, v in model.complete(params).items()}

@@ -1,7 +1,7 @@
 """Rig records: the :class:`Experiment` type, the published CSV format and the real record.
 
 Layer 1 of the package (imports only :mod:`heli_uq.errors` and :mod:`heli_uq.io`).
-Synthetic records need the simulator and live in :mod:`heli_uq.simulate`.
+Synthetic records need the simulator and live in :mod:`heli_uq.simulation`.
 """
 
 from heli_uq.data.experimental import (

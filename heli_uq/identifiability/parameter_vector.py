@@ -19,7 +19,7 @@ import numpy as np
 from heli_uq.errors import ParameterError
 from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.tables import X0_NAMES
-from heli_uq.simulate.solver import solve
+from heli_uq.simulation.solver import solve
 
 __all__ = ["ParameterVector", "sensitivity_matrix"]
 
@@ -99,7 +99,7 @@ class ParameterVector:
         return np.asarray(w)
 
     def solve(self, w, u, dt, x0_default=None, gradients="autodiff"):
-        """The model's :class:`~heli_uq.simulate.Solution` at ``w``."""
+        """The model's :class:`~heli_uq.simulation.Solution` at ``w``."""
         params, x0 = self.to_model(w, x0_default)
         return solve(params, x0, u, dt, model=self.model, substeps=self.substeps,
                      gradients=gradients)  # fmt: skip

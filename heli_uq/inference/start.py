@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -31,15 +32,19 @@ from heli_uq.inference.map import find_map, laplace, newton_polish
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.probability.likelihood import whitened_residuals
 from heli_uq.probability.problem import Problem
-from heli_uq.simulate.solver import default_substeps
+from heli_uq.simulation.solver import default_substeps
 
 __all__ = ["Start", "prepare_start", "least_squares_fit", "start_parameters", "map_starts",
-           "initial_draws", "whitening", "LSQ_SIGMA", "SUBSTEP_MARGIN"]  # fmt: skip
+           "initial_draws", "whitening", "LSQ_SIGMA", "SUBSTEP_MARGIN", "MAX_SUBSTEPS"]  # fmt: skip
 
 #: Residual scales [rad] (theta, psi) of the least-squares stage that precedes the MAP.
 LSQ_SIGMA = (0.02, 0.1)
 #: Substeps are chosen for this multiple of the MAP's stiffness (the posterior spreads).
 SUBSTEP_MARGIN = 2.0
+#: Most substeps :func:`prepare_start` gives a problem.  A MAP that needs more (friction
+#: far sharper than the rig's) is left at this number, with a warning: such a stiff mode
+#: is better smoothed (a larger ``omega_s``) than resolved.
+MAX_SUBSTEPS = 16
 #: Residual of a sample whose simulation failed in the least-squares stage.
 FAILED_RESIDUAL = 1e6
 #: Rounds of redrawing initial sampler positions whose log density is not finite.
@@ -237,6 +242,12 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
         sites = density.unravel(jnp.asarray(x_map))
         phys = {k: float(v) for k, v in problem.coords.to_physical(_full_z(problem, sites)).items()}
         need = required_substeps(problem, phys)
+        if need > MAX_SUBSTEPS:
+            warnings.warn(f"the MAP needs {need} solver substeps per sample for its stiffest "
+                          f"term; using {MAX_SUBSTEPS} (MAX_SUBSTEPS): the simulation may be "
+                          "inaccurate; consider smoother friction (a larger omega_s)",
+                          RuntimeWarning, stacklevel=2)  # fmt: skip
+            need = MAX_SUBSTEPS
         if need <= problem.substeps:
             break
         problem = problem.with_substeps(need)

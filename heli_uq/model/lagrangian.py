@@ -10,7 +10,7 @@ For any Lagrangian ``L(x, v, params)`` (a scalar, J) with generalized coordinate
 The helicopter's own kinetic and potential energy are given here too (App. A.1),
 written from the geometry only: no equation of motion is typed by hand in this
 module, which makes it the independent reference for the closed form in
-:mod:`heli_uq.dynamics`.
+:mod:`heli_uq.model.terms.rigid_body`.
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ from heli_uq.output.diagnostics import summarize
 from heli_uq.output.inference_data import save_netcdf, to_inference_data
 from heli_uq.output.plots import plot_bands, save_figure
 from heli_uq.probability.problem import make_problem
-from heli_uq.simulate.reference import solver_error
+from heli_uq.simulation.reference import solver_error
 
 __all__ = ["sample_posterior", "parameter_summary", "SOLVER_TOL"]
 

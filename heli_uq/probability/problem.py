@@ -17,7 +17,7 @@ from heli_uq.model.heli_model import HeliModel
 from heli_uq.probability.coordinates import Coordinates
 from heli_uq.probability.noise import ERROR_MODELS
 from heli_uq.probability.priors import PriorSet
-from heli_uq.simulate.solver import default_substeps, solve
+from heli_uq.simulation.solver import default_substeps, solve
 
 __all__ = ["Problem", "make_problem", "fingerprint"]
 
@@ -76,7 +76,7 @@ class Problem:
 
     def solve(self, params, x0, n: int | None = None, *, gradients: str = "adjoint"):
         """Simulate the first ``n`` samples of the span (default all) with the problem's
-        model and substeps; a :class:`~heli_uq.simulate.Solution`."""
+        model and substeps; a :class:`~heli_uq.simulation.Solution`."""
         u = jnp.asarray(self.u if n is None else self.u[:n])
         return solve(params, x0, u, self.dt, model=self.model, substeps=self.substeps,
                      gradients=gradients)  # fmt: skip
@@ -106,7 +106,7 @@ def make_problem(record: Experiment, train=None, test=None, *, model: HeliModel 
     strategy : {"auto", "identifiable", "log"}
         Sampling coordinates (:class:`~heli_uq.probability.Coordinates`).
     substeps : int, optional
-        RK4 substeps per sample; default :func:`~heli_uq.simulate.default_substeps` at the
+        RK4 substeps per sample; default :func:`~heli_uq.simulation.default_substeps` at the
         model's start values over the training window's pitch angles (1 for the paper's
         model).  The MAP stage raises it if the fitted parameters need more.
 

@@ -69,7 +69,7 @@ class AbstractTerm(eqx.Module):
         """Largest rate [1/s] this term adds to the linearised dynamics (0 if negligible).
 
         ``p``: parameter values; ``inertia``: ``(M11, M22_min)`` [kg m^2].  Used to choose
-        the number of solver substeps (:func:`heli_uq.simulate.default_substeps`).
+        the number of solver substeps (:func:`heli_uq.simulation.default_substeps`).
         """
         return 0.0
 

@@ -12,12 +12,12 @@ friction (the creep is the drift the effect should remove), ``tanh(omega / 0.002
 reached the noise.  A sharp width makes the term stiff: its rate is
 ``F_c / (omega_s M)`` [1/s] near ``omega = 0`` (``M`` the axis inertia), 500/s for
 ``F_c / M = 1`` rad/s^2 and ``omega_s = 0.002``.  The simulator treats it with substeps
-(:meth:`stiffness` sets their number, :func:`heli_uq.simulate.default_substeps`): fixed
+(:meth:`stiffness` sets their number, :func:`heli_uq.simulation.default_substeps`): fixed
 RK4 substeps keep the exact zero-order hold of the inputs and the discrete adjoint,
 and RK4 keeps the quasi-static creep rate exact in a stuck phase (a fixed point of the
 ODE is a fixed point of every RK stage), so only the short settling transient needs the
 resolution.  The choice is checked against an adaptive stiff reference solve
-(:func:`heli_uq.simulate.reference_solve`, diffrax Kvaerno5).
+(:func:`heli_uq.simulation.reference_solve`, diffrax Kvaerno5).
 """
 
 from __future__ import annotations

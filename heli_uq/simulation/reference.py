@@ -1,6 +1,6 @@
 """An adaptive, stiff reference solve of any model (diffrax), to check the fixed-step solver.
 
-The fixed-step RK4 solver (:mod:`heli_uq.simulate.solver`) is fast and differentiable
+The fixed-step RK4 solver (:mod:`heli_uq.simulation.solver`) is fast and differentiable
 but its accuracy depends on the number of substeps, which stiff effects (sharp
 friction) raise.  :func:`reference_solve` integrates the same vector field
 (``model(t, y, (p, u))``) with an L-stable implicit Runge-Kutta method (diffrax
@@ -20,7 +20,7 @@ import numpy as np
 
 from heli_uq.errors import ParameterError
 from heli_uq.model.heli_model import HeliModel
-from heli_uq.simulate.solver import solve
+from heli_uq.simulation.solver import solve
 
 __all__ = ["reference_solve", "solver_error", "REFERENCE_RTOL", "REFERENCE_ATOL"]
 
@@ -43,7 +43,7 @@ def reference_solve(params: Mapping | None, x0, u, dt: float, *, model: HeliMode
     Parameters
     ----------
     params, x0, u, dt, model
-        As for :func:`heli_uq.simulate.solve`.
+        As for :func:`heli_uq.simulation.solve`.
     rtol, atol : float
         Tolerances of the PID controller.
 

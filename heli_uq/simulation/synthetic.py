@@ -80,7 +80,7 @@ def synthetic_experiment(
         Seed of the numpy Generator drawing inputs and noise; same seed, same record.
     simulator : callable, optional
         ``simulator(params, x0, u, dt) -> (N, 4)`` states on the sample grid (e.g. an
-        independent reference); default :func:`heli_uq.simulate.simulate` of ``model``.
+        independent reference); default :func:`heli_uq.simulation.simulate` of ``model``.
     model : HeliModel, optional
         The model simulated by the default simulator (default: the paper's); ``params``
         may then name its effect parameters (e.g. ``F_c_yaw``).
@@ -137,7 +137,7 @@ def synthetic_experiment(
 
 def _model_simulator(model, params, dt, substeps):
     from heli_uq.model.heli_model import HeliModel
-    from heli_uq.simulate.solver import default_substeps, simulate
+    from heli_uq.simulation.solver import default_substeps, simulate
 
     model = HeliModel() if model is None else model
     n_sub = default_substeps(model, params, dt, margin=2.0) if substeps is None else substeps

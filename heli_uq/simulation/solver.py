@@ -6,7 +6,7 @@ step never straddles a switch of the input: each switch is treated exactly, with
 smoothing and no adaptive step.  For the paper's model one RK4 step per interval of the
 rig record (dt = 0.01 s) is accurate to well below 1e-6 rad; stiff effects (sharp
 friction) need more substeps, see :func:`default_substeps` and
-:func:`heli_uq.simulate.reference_solve`.
+:func:`heli_uq.simulation.reference_solve`.
 
 Gradients use a hand-built *discrete adjoint* (a :func:`jax.custom_vjp`): the
 forward pass stores only the states; the backward pass computes the sines and cosines of
@@ -42,6 +42,10 @@ MAX_ABS_STATE = 1.0e4
 #: Largest number of solver steps (samples x substeps) one solve may take: 10 million
 #: steps store 0.3 GB of states and trigonometry, several minutes of work.
 MAX_SAMPLES = 10_000_000
+#: Substeps up to this number are unrolled in the step (fastest); more run in a loop, so
+#: that a stiff model does not multiply the compiled program (and its memory) by them.
+UNROLLED_SUBSTEPS = 4
+
 #: ``rate * h`` at which :func:`default_substeps` places an RK4 step: half the stability
 #: limit 2.785 of RK4 on a decaying mode, which keeps its settling error small.
 STABLE_STEP = 1.4
@@ -146,6 +150,11 @@ def _make_trajectory(static_model, unravel, substeps: int):
         dyn_model, prepared, dt = args_tree
         model = eqx.combine(dyn_model, static_model)
         h = dt / substeps
+        if substeps > UNROLLED_SUBSTEPS:  # a loop keeps compile time and memory flat
+            def sub(y_i, trig_i):
+                return _rk4_step(model, prepared, y_i, u, h, trig_i)
+
+            return lax.scan(sub, y, trig, length=substeps)
         stage_trig = []
         for i in range(substeps):
             y, t = _rk4_step(model, prepared, y, u, h, None if trig is None else trig[i])

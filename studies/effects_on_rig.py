@@ -59,9 +59,7 @@ def fit(record, effects, seed: int, n_starts: int) -> dict:
     x0 = jnp.asarray([best[n] for n in ("theta0", "psi0", "omega_theta0", "omega_psi0")])
     ys = np.asarray(problem.solve(params, x0).ys)
     resid = ys[:, :2] - problem.y
-    rng = np.random.default_rng(seed)
-    draws = rng.multivariate_normal(start.x_map, start.covariance, LAPLACE_DRAWS, method="eigh")
-    sites = constrain_draws(density, draws)
+    sites = start.laplace_draws(LAPLACE_DRAWS, seed=seed)
     theta_ref = problem.coords.yaw_theta_ref
     out = {}
     for term in model.effects:

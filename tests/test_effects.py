@@ -350,7 +350,6 @@ def test_hidden_effect_is_recovered(kind):
     the sampler's unconstrained coordinates, so skewed in physical units), to keep CI
     short; ``studies/effect_recovery.py`` checks the same with NUTS."""
     from heli_uq.inference import prepare_start
-    from heli_uq.inference.density import constrain_draws
     from heli_uq.model.terms.rigid_body import yaw_inertia
     from heli_uq.probability import make_problem
     from heli_uq.simulation import synthetic_experiment
@@ -366,9 +365,7 @@ def test_hidden_effect_is_recovered(kind):
     problem = make_problem(record, model=model, error="iid")
     start = prepare_start(problem, n_starts=1)
     assert start.map_decrement < 1e-8
-    rng = np.random.default_rng(0)
-    x = rng.multivariate_normal(start.x_map, start.covariance, LAPLACE_DRAWS, method="eigh")
-    s = constrain_draws(start.density, x)
+    s = start.laplace_draws(LAPLACE_DRAWS, seed=0)
     theta_ref = problem.coords.yaw_theta_ref
     m22, m22_true = yaw_inertia(s, theta_ref), yaw_inertia(truth, theta_ref)
     for par in model.effects[0].parameters():

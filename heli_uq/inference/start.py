@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from heli_uq.errors import ParameterError
-from heli_uq.inference.density import LogDensity, init_sites, log_density_setup
+from heli_uq.inference.density import LogDensity, constrain_draws, init_sites, log_density_setup
 from heli_uq.inference.levenberg import masked_least_squares
 from heli_uq.inference.map import find_map, laplace, newton_polish
 from heli_uq.model.tables import X0_NAMES
@@ -171,6 +171,14 @@ class Start:
     #: Convergence of the MAP: ``max |grad|`` and Newton decrement at ``x_map``.
     map_grad_max: float = float("nan")
     map_decrement: float = float("nan")
+
+    def laplace_draws(self, n: int, seed: int = 0) -> dict:
+        """``n`` draws of the Laplace approximation at the MAP (Gaussian in the sampler's
+        unconstrained coordinates, so skewed in physical units), as constrained sites:
+        ``{name: array (n, ...)}`` (parameters, initial state, residual scales)."""
+        rng = np.random.default_rng(seed)
+        x = rng.multivariate_normal(self.x_map, self.covariance, n, method="eigh")
+        return constrain_draws(self.density, x)
 
     def info(self) -> dict:
         """JSON-ready facts of the start (without the arrays)."""

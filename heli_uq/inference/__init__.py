@@ -10,6 +10,7 @@ from heli_uq.inference.density import constrain_draws as constrain_draws
 from heli_uq.inference.density import log_density_setup as log_density_setup
 from heli_uq.inference.emcee_sampler import run_emcee as run_emcee
 from heli_uq.inference.levenberg import masked_least_squares as masked_least_squares
+from heli_uq.inference.manifest import run_manifest as run_manifest
 from heli_uq.inference.map import MapResult as MapResult
 from heli_uq.inference.map import find_map as find_map
 from heli_uq.inference.map import laplace as laplace
@@ -26,4 +27,4 @@ SAMPLERS = ("nuts", "emcee")
 __all__ = ["Checkpoint", "LogDensity", "constrain_draws", "log_density_setup", "run_emcee",
            "masked_least_squares", "MapResult", "find_map", "laplace", "TARGET_ACCEPT",
            "SamplerRun", "run_nuts", "Start", "least_squares_fit", "prepare_start",
-           "start_parameters", "SAMPLERS"]  # fmt: skip
+           "start_parameters", "SAMPLERS", "run_manifest"]  # fmt: skip

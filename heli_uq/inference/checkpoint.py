@@ -2,20 +2,23 @@
 
 A sampler writes its draws ``chunk`` at a time into ``DIR/<name>/`` together with the
 state to continue from, each file atomically, so Ctrl-C or a crash loses at most one
-chunk.  The start (MAP, Laplace covariance) and the *settings* that determine the
-draws are saved first; :meth:`Checkpoint.resume_info` refuses to continue under
-different settings and names the ones that differ.
+chunk.  The start (MAP, Laplace covariance) and the run's *manifest* (everything that
+determines the draws, :mod:`heli_uq.inference.manifest`) are saved first;
+:meth:`Checkpoint.resume_info` refuses to continue under a different manifest, naming
+the settings that differ, and refuses a resume with nothing to resume.
 """
 
 from __future__ import annotations
 
+import json
 import pathlib
 import pickle
 
 import jax
 
 from heli_uq.errors import ParameterError
-from heli_uq.io import atomic_write_bytes
+from heli_uq.inference.manifest import MANIFEST_FILE, mismatch_message
+from heli_uq.io import atomic_write_bytes, atomic_write_text
 
 __all__ = ["Checkpoint"]
 
@@ -38,33 +41,43 @@ class Checkpoint:
     def _chunk(self, stream: str, index: int) -> pathlib.Path:
         return self.directory / f"{stream}_chunk_{index:05d}.pkl"
 
-    def start_new(self, start_info: dict, settings: dict) -> None:
-        """Delete any earlier chunks and save the start and the settings."""
+    def start_new(self, start_info: dict, manifest: dict) -> None:
+        """Delete any earlier chunks and save the start and the run's ``manifest``
+        (:func:`heli_uq.inference.manifest.run_manifest`, JSON)."""
         for f in self.directory.glob("*_chunk_*.pkl"):
             f.unlink()
-        payload = {"start": start_info, "settings": dict(settings)}
-        atomic_write_bytes(self.directory / _START, pickle.dumps(payload))
+        atomic_write_text(self.directory / MANIFEST_FILE, json.dumps(manifest, indent=1, sort_keys=True))
+        atomic_write_bytes(self.directory / _START, pickle.dumps({"start": start_info}))
 
-    def resume_info(self, settings: dict) -> dict | None:
-        """The saved start if a run with the same ``settings`` can be continued, else None.
+    def manifest(self) -> dict | None:
+        """The saved manifest, or None if there is none."""
+        path = self.directory / MANIFEST_FILE
+        if not path.exists():
+            return None
+        return json.loads(path.read_text(encoding="utf-8"))
+
+    def resume_info(self, manifest: dict) -> dict:
+        """The saved start of a run with the same ``manifest``, to continue it.
 
         Raises
         ------
         ParameterError
-            If a saved run exists with different settings (naming each difference).
+            If there is no saved run to resume, or the saved run's manifest differs
+            (one line naming each differing setting with its saved and new value).
         """
         path = self.directory / _START
-        if not path.exists():
-            return None
-        with open(path, "rb") as fh:
-            payload = pickle.load(fh)
-        saved = payload.get("settings", {})
-        diff = [f"{k}: saved {saved.get(k)!r}, now {settings.get(k)!r}"
-                for k in sorted(set(saved) | set(settings)) if saved.get(k) != settings.get(k)]  # fmt: skip
+        saved = self.manifest()
+        if not path.exists() or saved is None:
+            what = "nothing to resume" if not path.exists() else "a run without a manifest (older heli_uq)"
+            raise ParameterError(f"resume: {what} in {self.directory}; start the run without "
+                                 "resuming")  # fmt: skip
+        diff = mismatch_message(saved, manifest)
         if diff:
-            raise ParameterError(f"resume: {self.directory} was run with other settings ("
-                                 + "; ".join(diff) + "); use the same settings or start again")  # fmt: skip
-        return payload["start"]
+            raise ParameterError(f"resume: the run in {self.directory} was made with other "
+                                 f"settings ({diff}); give the same settings, or start again "
+                                 "without resuming")  # fmt: skip
+        with open(path, "rb") as fh:
+            return pickle.load(fh)["start"]
 
     def save(self, stream: str, index: int, record: dict) -> None:
         """Write chunk ``index`` of ``stream`` (arrays and the state to continue from)."""

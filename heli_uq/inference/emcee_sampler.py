@@ -38,9 +38,10 @@ import numpy as np
 from heli_uq.errors import ParameterError
 from heli_uq.inference.checkpoint import Checkpoint
 from heli_uq.inference.density import LogDensity, constrain_draws, coordinate_names, log_density_setup
+from heli_uq.inference.manifest import run_manifest
 from heli_uq.inference.nuts import SamplerRun
 from heli_uq.inference.start import Start, initial_draws, prepare_start, whitening
-from heli_uq.probability.problem import Problem, fingerprint
+from heli_uq.probability.problem import Problem
 
 __all__ = ["run_emcee", "INIT_SCALE", "TAU_FACTOR"]
 
@@ -205,8 +206,8 @@ def _autocorrelation(chain: np.ndarray, kept_draws: int, ensemble: int):
 
 def _prepare(problem, checkpoint: Checkpoint, *, resume, seed, start, walkers):
     """Density and start info (new, or loaded for ``resume``)."""
-    settings = {"sampler": "emcee", "seed": seed, **fingerprint(problem)}
-    info = checkpoint.resume_info(settings) if resume else None
+    manifest = run_manifest(problem, {"sampler": "emcee", "seed": seed})
+    info = checkpoint.resume_info(manifest) if resume else None
     if info is not None:
         density = log_density_setup(problem.with_substeps(info["substeps"]), seed=seed)
         if walkers is not None and _check_walkers(walkers, density.dim) != info["walkers"]:
@@ -217,7 +218,7 @@ def _prepare(problem, checkpoint: Checkpoint, *, resume, seed, start, walkers):
     start = prepare_start(problem, seed=seed) if start is None else start
     info = dict(start.info(), x_map=np.asarray(start.x_map), covariance=np.asarray(start.covariance),
                 walkers=_check_walkers(walkers, start.density.dim))  # fmt: skip
-    checkpoint.start_new(info, settings)
+    checkpoint.start_new(info, manifest)
     return start.density, info
 
 

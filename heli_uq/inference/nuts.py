@@ -21,8 +21,9 @@ from numpyro.infer import MCMC, NUTS
 from heli_uq.errors import ParameterError
 from heli_uq.inference.checkpoint import Checkpoint
 from heli_uq.inference.density import constrain_draws, log_density_setup
+from heli_uq.inference.manifest import run_manifest
 from heli_uq.inference.start import Start, initial_draws, prepare_start, whitening
-from heli_uq.probability.problem import Problem, fingerprint
+from heli_uq.probability.problem import Problem
 
 __all__ = ["SamplerRun", "run_nuts", "TARGET_ACCEPT"]
 
@@ -108,15 +109,16 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         raise ParameterError(f"target_accept: expected a number in (0, 1), found {target_accept!r}")
     t_start = time.perf_counter()
     checkpoint = Checkpoint(pathlib.Path(out_dir) / CHUNK_DIR)
-    settings = {"sampler": "nuts", "chains": chains, "warmup": warmup, "draws": draws, "chunk": chunk,
-                "seed": seed, "max_tree_depth": max_tree_depth, "target_accept": target_accept,
-                "adapt_mass_matrix": adapt_mass_matrix, **fingerprint(problem)}  # fmt: skip
-    info = checkpoint.resume_info(settings) if resume else None
+    manifest = run_manifest(problem, {
+        "sampler": "nuts", "chains": chains, "warmup": warmup, "draws": draws, "chunk": chunk,
+        "seed": seed, "max_tree_depth": max_tree_depth, "target_accept": target_accept,
+        "adapt_mass_matrix": adapt_mass_matrix})  # fmt: skip
+    info = checkpoint.resume_info(manifest) if resume else None
     records = checkpoint.load("nuts") if info is not None else []
     if info is None:
         start = prepare_start(problem, seed=seed) if start is None else start
         info = _start_info(start)
-        checkpoint.start_new(info, settings)
+        checkpoint.start_new(info, manifest)
         density = start.density
     else:
         density = log_density_setup(problem.with_substeps(info["substeps"]), seed=seed)

@@ -148,12 +148,18 @@ def make_problem(record: Experiment, train=None, test=None, *, model: HeliModel 
 
 def fingerprint(problem: Problem) -> dict:
     """What determines a problem's posterior, as JSON-able values: a sha256 of the record's
-    arrays, the windows, the model description, the priors, the error model, the
-    coordinates and the substeps.  Samplers store it to refuse resuming another problem."""
+    arrays, the windows (sample indices and seconds, ``[start, stop)``), the model
+    description, the priors, the error model, the coordinates and the substeps.  Samplers
+    store it to refuse resuming another problem."""
     digest = hashlib.sha256()
     for arr in (problem.u, problem.y, problem.t):
         digest.update(np.ascontiguousarray(arr, dtype=np.float64).tobytes())
-    return {"data_sha256": digest.hexdigest(), "dt": problem.dt, "n_train": problem.n_train,
+    t0, dt = float(problem.t[0]), float(problem.dt)
+    train = [t0, t0 + problem.n_train * dt]
+    test = None if problem.test is None else [t0 + problem.test[0] * dt, t0 + problem.test[1] * dt]
+    return {"data_sha256": digest.hexdigest(), "dt": dt, "n_train": problem.n_train,
+            "train_s": [round(v, 9) for v in train],
+            "test_s": None if test is None else [round(v, 9) for v in test],
             "test": None if problem.test is None else list(problem.test),
             "model": json.dumps(problem.model.describe(), sort_keys=True),
             "priors": json.dumps(problem.priors.to_json(), sort_keys=True),

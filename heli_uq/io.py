@@ -1,4 +1,5 @@
-"""Atomic file writes (write to a temporary file in the same directory, then rename)."""
+"""Atomic file writes (write to a temporary file in the same directory, then rename), and
+the up-front memory check of a request (:func:`require_memory`)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,8 @@ import os
 import pathlib
 import tempfile
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "publish", "read_json_object"]
+__all__ = ["atomic_write_bytes", "atomic_write_text", "publish", "read_json_object",
+           "format_bytes", "physical_memory", "require_memory"]
 
 
 def _umask() -> int:
@@ -71,3 +73,46 @@ def read_json_object(path, what: str) -> dict:
             f"{path}: expected a JSON object ({what} file), found {type(raw).__name__}"
         )
     return raw
+
+
+def format_bytes(n: float) -> str:
+    """``1.46e12`` -> ``"1.3 TiB"`` (binary units)."""
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if abs(n) < 1024 or unit == "PiB":
+            return f"{n:.3g} {unit}" if unit != "B" else f"{n:.0f} B"
+        n /= 1024
+    raise AssertionError("unreachable")
+
+
+def physical_memory() -> int | None:
+    """This machine's physical memory [bytes], or None where the OS does not say."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def require_memory(nbytes: float, what: str, hint: str = "") -> None:
+    """Refuse a request that would need more than this machine's physical memory.
+
+    Parameters
+    ----------
+    nbytes : float
+        Estimated peak memory of the request [bytes].
+    what : str
+        The request, starting with the argument that sets it (``"t_end: 1e11 samples"``).
+    hint : str
+        What to change, appended after a semicolon.
+
+    Raises
+    ------
+    heli_uq.errors.ParameterError
+        ``"<what> would need about 1.3 TiB of memory, more than this machine's 7.6 GiB; <hint>"``.
+    """
+    from heli_uq.errors import ParameterError
+
+    total = physical_memory()
+    if total is not None and nbytes > total:
+        tail = f"; {hint}" if hint else ""
+        raise ParameterError(f"{what} would need about {format_bytes(nbytes)} of memory, more than "
+                             f"this machine's {format_bytes(total)}{tail}")  # fmt: skip

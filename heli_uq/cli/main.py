@@ -14,9 +14,11 @@ setting ``handler=<function(args) -> int>`` and returning the parser) plus one e
 
 Exit codes: 0 success, 1 the simulation failed (diverged), 2 bad input or usage (any
 :class:`~heli_uq.errors.HeliUQError`, an output that cannot be written, or an argparse
-usage error).  Errors are reported as one line ``heli-uq: error: <message>`` on stderr;
-a message from the library that starts with an argument name (``effects: ...``) is shown
-with the option that set it (``--effects: ...``).
+usage error), 3 a health check failed under ``--strict``, 130 interrupted (SIGINT; the
+finished draws are saved and one line says how to resume).  Errors are reported as one
+line ``heli-uq: error: <message>`` on stderr; a message from the library that starts
+with an argument name (``effects: ...``) is shown with the option that set it
+(``--effects: ...``).
 
 JAX: the commands that sample set one XLA host device per chain
 (``numpyro.set_host_device_count``) before JAX starts, so chains run in parallel.
@@ -26,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import re
+import shlex
 import sys
 
 from heli_uq.cli import data, identifiability, run, sample, simulate
@@ -72,12 +75,30 @@ def _with_option(message: str, options: set) -> str:
     return message
 
 
+#: Exit status after SIGINT (128 + 2, the shell's convention).
+EXIT_INTERRUPTED = 130
+
+
+def _interrupt_message(exc: KeyboardInterrupt, args, argv: list[str]) -> str:
+    """One line: what was saved and the command that continues (if the command resumes)."""
+    from heli_uq.inference.interrupt import Interrupted
+
+    if not isinstance(exc, Interrupted):
+        return "interrupted before anything was saved; run the command again"
+    again = [PROG, *argv] + ([] if "--resume" in argv else ["--resume"])
+    return f"interrupted: {exc.saved}; continue with: {shlex.join(again)}"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``heli-uq`` with *argv* (default ``sys.argv[1:]``); return the exit status."""
     parser, options = _build()
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
     try:
         return int(args.handler(args))
+    except KeyboardInterrupt as exc:
+        print(f"{PROG}: {_interrupt_message(exc, args, argv)}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except (HeliUQError, OSError) as exc:
         if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
             message = f"{exc.filename}: {exc.strerror}"  # e.g. an --out that is a file

@@ -14,7 +14,11 @@ from pathlib import Path
 from heli_uq.errors import ParameterError
 
 __all__ = ["Formatter", "add_model_options", "model_from_args", "add_prior_options",
-           "priors_from_args", "check_positive", "out_dir", "positive_float", "EFFECTS_HELP"]  # fmt: skip
+           "priors_from_args", "check_positive", "out_dir", "positive_float", "EFFECTS_HELP",
+           "add_trust_options", "report_health", "EXIT_UNHEALTHY"]  # fmt: skip
+
+#: Exit status of a run whose health checks failed under ``--strict``.
+EXIT_UNHEALTHY = 3
 
 
 class Formatter(argparse.RawDescriptionHelpFormatter):
@@ -108,3 +112,30 @@ def positive_float(text: str, option: str) -> float:
     if not (math.isfinite(value) and value > 0):
         raise ParameterError(f"{option}: expected a finite number > 0, found {text!r}")
     return value
+
+
+def add_trust_options(p) -> None:
+    """``--resume`` and ``--strict`` of the commands that sample."""
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run from DIR/chunks; refused (naming the "
+                        "differences) unless every setting that determines the draws is the "
+                        "same as in DIR/chunks/manifest.json, and when there is nothing to "
+                        "resume")
+    p.add_argument("--strict", action="store_true",
+                   help=f"exit with status {EXIT_UNHEALTHY} when a health check fails "
+                        "(R-hat, ESS, divergences, tree depth, step size, MAP convergence, "
+                        "unphysical predictive simulations); without it they are warnings")
+
+
+def report_health(summary: dict, strict: bool) -> int:
+    """Print the warning block of a failed health check on stderr; the exit status
+    (:data:`EXIT_UNHEALTHY` under ``strict``, else 0)."""
+    import sys
+
+    from heli_uq.output.health import format_warnings
+
+    health = summary["health"]
+    if health["ok"]:
+        return 0
+    print(format_warnings(health), file=sys.stderr)
+    return EXIT_UNHEALTHY if strict else 0

@@ -9,9 +9,11 @@ from heli_uq.cli.data import show_record
 from heli_uq.cli.options import (
     Formatter,
     add_model_options,
+    add_trust_options,
     check_positive,
     model_from_args,
     out_dir,
+    report_health,
 )
 from heli_uq.cli.simulate import simulate_to_files
 from heli_uq.errors import HeliUQError
@@ -79,13 +81,13 @@ def cmd_run(args) -> int:
     _, summary = sample_posterior(
         record, post, model=model, train=(t0, split), test=(split, t_end), error="iid",
         chains=args.chains, warmup=args.warmup, draws=args.draws, seed=args.seed,
-        progress=not args.no_progress,
+        progress=not args.no_progress, resume=args.resume, log=print,
     )  # fmt: skip
     keys = ("rhat_max", "ess_bulk_min", "divergences", "coverage90", "coverage90_test", "wall_s")
     print(json.dumps({k: summary[k] for k in keys if k in summary}))
     print(f"wrote {post / 'posterior.nc'}, summary.json, bands.png")
     print(f"main job finished; figures and tables in {out}")
-    return status
+    return status or report_health(summary, args.strict)
 
 
 def add_parser(subparsers):
@@ -117,6 +119,9 @@ def add_parser(subparsers):
     p.add_argument("--draws", type=int, default=500, help="kept draws per chain (default: 500)")
     p.add_argument("--seed", type=int, default=0, help="seed of the posterior (default: 0)")
     add_model_options(p)
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_trust_options(p)
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress lines (they go to stderr, rewritten in place on a terminal,"
+                        " every 30 s otherwise)")
     p.set_defaults(handler=cmd_run)
     return p

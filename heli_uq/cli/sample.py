@@ -9,10 +9,12 @@ from heli_uq.cli.options import (
     Formatter,
     add_model_options,
     add_prior_options,
+    add_trust_options,
     check_positive,
     model_from_args,
     out_dir,
     priors_from_args,
+    report_health,
 )
 from heli_uq.errors import ParameterError
 
@@ -47,7 +49,7 @@ def cmd_sample(args) -> int:
         priors=priors, chains=args.chains, warmup=args.warmup, draws=args.draws,
         seed=args.seed, resume=args.resume, progress=not args.no_progress,
         walkers=args.walkers, adapt_mass_matrix=args.adapt_mass_matrix == "on",
-        target_accept=target_accept,
+        target_accept=target_accept, log=print,
     )  # fmt: skip
     keys = ("rhat_max", "ess_bulk_min", "ess_tail_min", "divergences", "rmse", "coverage90",
             "rmse_test", "coverage90_test", "solver_error_rad", "wall_s")  # fmt: skip
@@ -59,7 +61,7 @@ def cmd_sample(args) -> int:
             f"{n} = {v['mean']:.4g} [{v['ci95'][0]:.4g}, {v['ci95'][1]:.4g}] {v['unit']}"
             for n, v in effects.items()))  # fmt: skip
     print(f"wrote {out / 'posterior.nc'}, summary.csv, summary.json, bands.png")
-    return 0
+    return report_health(summary, args.strict)
 
 
 def add_parser(subparsers):
@@ -119,9 +121,10 @@ def add_parser(subparsers):
                    help="residual model per output (default: ar1)")
     add_prior_options(p)
     p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
-    p.add_argument("--resume", action="store_true",
-                   help="continue an interrupted run from DIR/chunks")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_trust_options(p)
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress lines (they go to stderr, rewritten in place on a terminal,"
+                        " every 30 s otherwise)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.set_defaults(handler=cmd_sample)
     return p

@@ -65,6 +65,9 @@ def load_experimental(*, data_dir: str | os.PathLike | None = None) -> Experimen
 
     import pooch
 
+    logger = pooch.get_logger()
+    level = logger.level
+    logger.setLevel("WARNING")  # no "Downloading ..." line before our own message
     try:
         path = pooch.retrieve(
             EXPERIMENTAL_URL,
@@ -74,11 +77,26 @@ def load_experimental(*, data_dir: str | os.PathLike | None = None) -> Experimen
             progressbar=False,
         )
     except Exception as exc:  # network, permission or checksum failure
+        # The useful sentence first; the library's reason (often a long urllib3 chain)
+        # only by its kind.
         raise DataFormatError(
-            f"cannot download {EXPERIMENTAL_URL} ({exc}); set {DATA_ENV_VAR} to a directory "
-            f"containing {EXPERIMENTAL_FILENAME}"
+            f"the rig record could not be downloaded ({_short_reason(exc)}): set {DATA_ENV_VAR} "
+            f"to a directory containing {EXPERIMENTAL_FILENAME} (from {EXPERIMENTAL_URL})"
         ) from exc
+    finally:
+        logger.setLevel(level)
     return read_record(path)
+
+
+def _short_reason(exc: BaseException) -> str:
+    """``"offline or host not found: ConnectionError"``-style summary of a download error."""
+    text = f"{type(exc).__name__}: {exc}"
+    if any(k in text for k in ("NameResolution", "Name or service", "resolve", "ConnectionError",
+                               "Max retries", "Network is unreachable", "timed out")):  # fmt: skip
+        return f"no network connection ({type(exc).__name__})"
+    if "hash" in text.lower() or "sha256" in text.lower():
+        return "the downloaded file's sha256 does not match"
+    return type(exc).__name__
 
 
 def load_data(spec: str) -> Experiment:

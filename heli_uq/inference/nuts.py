@@ -5,6 +5,15 @@ so chains do not start in the regime where the model flies off.  Draws are produ
 ``chunk`` at a time after warm-up and written with the sampler state
 (:class:`~heli_uq.inference.checkpoint.Checkpoint`), so ``resume=True`` continues an
 interrupted run with the same seed stream (same seed, same draws).
+
+The chains advance in short compiled *blocks* of NUTS iterations (numpyro's kernel, all
+chains at once: one device per chain when there are enough, else vectorised), each cut
+to about :data:`BLOCK_SECONDS` of work.  Between blocks the sampler reports progress
+(warm-up or sampling, iterations, divergences per chain) and honours an interrupt: the
+first SIGINT saves the draws finished so far (or the warm-up state) and raises
+:class:`~heli_uq.inference.interrupt.Interrupted`; ``resume=True`` then continues to the
+same draws, bit for bit, as an uninterrupted run (every iteration runs the same compiled
+step, whatever the block lengths).
 """
 
 from __future__ import annotations
@@ -16,16 +25,19 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from numpyro.infer import MCMC, NUTS
+from jax import lax
+from numpyro.infer import NUTS
 
 from heli_uq.errors import ParameterError
 from heli_uq.inference.checkpoint import Checkpoint
 from heli_uq.inference.density import constrain_draws, log_density_setup
+from heli_uq.inference.interrupt import Interrupted, Progress, deferred_interrupt
 from heli_uq.inference.manifest import run_manifest
 from heli_uq.inference.start import Start, initial_draws, prepare_start, whitening
+from heli_uq.io import require_memory
 from heli_uq.probability.problem import Problem
 
-__all__ = ["SamplerRun", "run_nuts", "TARGET_ACCEPT"]
+__all__ = ["SamplerRun", "run_nuts", "TARGET_ACCEPT", "check_draws_memory"]
 
 NUTS_EXTRA_FIELDS = ("diverging", "num_steps", "energy", "accept_prob", "potential_energy")
 #: Default target acceptance of the step-size adaptation.  On the full rig record
@@ -33,6 +45,12 @@ NUTS_EXTRA_FIELDS = ("diverging", "num_steps", "energy", "accept_prob", "potenti
 #: steps per draw, 0.95 none and 17.0 steps (+8 % gradients).
 TARGET_ACCEPT = 0.95
 CHUNK_DIR = "chunks"
+#: Most NUTS iterations per compiled block (the size of its output buffers).
+BLOCK_MAX = 50
+#: Target wall time of one block [s]: the latency of an interrupt and of progress lines.
+BLOCK_SECONDS = 2.0
+#: Iterations of the first block (it includes compiling, so it sets no pace).
+FIRST_BLOCK = 2
 
 
 @dataclasses.dataclass
@@ -51,8 +69,75 @@ class SamplerRun:
     problem: Problem
 
 
+#: Copies of every kept draw held at once (sampler coordinates, whitened ones, constrained
+#: sites, the InferenceData), each of ``dim + DRAW_EXTRA_VALUES`` float64 values.
+DRAW_COPIES = 4
+DRAW_EXTRA_VALUES = 16
+
+
+def check_draws_memory(problem: Problem, n_draws: int, what: str) -> None:
+    """Refuse up front ``n_draws`` kept draws (all chains) that would not fit in memory.
+
+    ``what`` names the request, starting with the argument (``"draws: 4 chains x 1e9"``).
+
+    Raises
+    ------
+    ParameterError
+        With the memory the draws would need.
+    """
+    per_draw = DRAW_COPIES * 8 * (problem.coords.dim + DRAW_EXTRA_VALUES)
+    require_memory(float(n_draws) * per_draw, what, "ask for fewer draws or chains")
+
+
 def _start_info(start: Start) -> dict:
     return dict(start.info(), x_map=np.asarray(start.x_map), covariance=np.asarray(start.covariance))
+
+
+def _chain_functions(kernel, warmup: int, dim: int, parallel: bool):
+    """``init(keys, w0) -> state`` and ``block(state, n) -> (state, out)`` for all chains:
+    ``n`` (<= :data:`BLOCK_MAX`, traced: one compilation) NUTS iterations of every chain,
+    ``out`` = per-iteration ``(w, diverging, num_steps, energy, accept_prob,
+    potential_energy)`` in buffers of :data:`BLOCK_MAX` rows (the first ``n`` are set)."""
+
+    def init_one(key, w0):
+        return kernel.init(key, warmup, w0, (), {})
+
+    def fields(s):
+        return (s.z, s.diverging, s.num_steps, s.energy, s.accept_prob, s.potential_energy)
+
+    def block_one(state, n):
+        def body(i, carry):
+            s, out = carry
+            s = kernel.sample(s, (), {})
+            return s, tuple(o.at[i].set(v) for o, v in zip(out, fields(s), strict=True))
+
+        out = tuple(jnp.zeros((BLOCK_MAX,) + jnp.shape(v), jnp.result_type(v)) for v in fields(state))
+        return lax.fori_loop(0, n, body, (state, out))
+
+    if parallel:
+        return jax.pmap(init_one), jax.pmap(block_one, in_axes=(0, None))
+    return jax.jit(jax.vmap(init_one)), jax.jit(jax.vmap(block_one, in_axes=(0, None)))
+
+
+def _save_chunk(checkpoint: Checkpoint, index: int, pending: list, state, x_map, lower) -> dict:
+    """Write the draws of ``pending`` blocks (whitened ``w`` -> sampler coordinates ``x``)
+    with the state to continue from, as chunk ``index``; returns the record."""
+    w, *stats = (np.concatenate(parts, axis=1) for parts in zip(*pending, strict=True))
+    record = {"x": x_map + w @ lower.T, "stats": dict(zip(NUTS_EXTRA_FIELDS, stats, strict=True)),
+              "state": jax.device_get(state)}  # fmt: skip
+    checkpoint.save("nuts", index, record)
+    return record
+
+
+def _progress_text(it: int, warmup: int, draws: int, chains: int, pending: list, records: list,
+                   seconds: float) -> str:  # fmt: skip
+    """``"NUTS sampling (4 chains): 120/500 draws, 35 s; divergences per chain 0 0 1 0"``."""
+    if it <= warmup and not records and not pending:
+        return f"NUTS warm-up ({chains} chains): {it}/{warmup} iterations, {seconds:.0f} s"
+    div = [r["stats"]["diverging"] for r in records] + [p[1] for p in pending]
+    per_chain = np.concatenate(div, axis=1).sum(axis=1) if div else np.zeros(chains, int)
+    return (f"NUTS sampling ({chains} chains): {it - warmup}/{draws} draws, {seconds:.0f} s; "
+            "divergences per chain " + " ".join(str(int(d)) for d in per_chain))
 
 
 def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
@@ -84,10 +169,12 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         independent draws of the Laplace approximation.  They run in parallel when JAX
         has at least ``chains`` devices (the CLI sets ``numpyro.set_host_device_count``).
     chunk : int
-        Draws per saved chunk.
+        Draws per saved chunk (an interrupt also saves the draws finished so far).
     resume : bool
-        Continue from ``out_dir/chunks`` (same settings, else an error) instead of
-        starting again.
+        Continue from ``out_dir/chunks`` (same manifest, else an error; nothing saved
+        there is an error too) instead of starting again.
+    progress : bool
+        Status lines on stderr (module :mod:`heli_uq.inference.interrupt`).
     target_accept : float
         Target mean acceptance probability of step-size adaptation.
     adapt_mass_matrix : bool
@@ -99,7 +186,10 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     Raises
     ------
     ParameterError
-        Invalid options, or a resume under different settings.
+        Invalid options, or a resume under different settings or with nothing to resume.
+    Interrupted
+        After a SIGINT, at the end of the current block, once the finished draws (or the
+        warm-up state) are saved.
     """
     for name, value in (("chains", chains), ("warmup", warmup), ("draws", draws),
                         ("chunk", chunk)):  # fmt: skip
@@ -107,6 +197,7 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
             raise ParameterError(f"{name}: expected a positive integer, found {value!r}")
     if not 0.0 < target_accept < 1.0:
         raise ParameterError(f"target_accept: expected a number in (0, 1), found {target_accept!r}")
+    check_draws_memory(problem, chains * draws, f"draws: {chains} chains x {draws} draws")
     t_start = time.perf_counter()
     checkpoint = Checkpoint(pathlib.Path(out_dir) / CHUNK_DIR)
     manifest = run_manifest(problem, {
@@ -115,6 +206,7 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         "adapt_mass_matrix": adapt_mass_matrix})  # fmt: skip
     info = checkpoint.resume_info(manifest) if resume else None
     records = checkpoint.load("nuts") if info is not None else []
+    warm_record = checkpoint.load("nuts_warmup") if info is not None else []
     if info is None:
         start = prepare_start(problem, seed=seed) if start is None else start
         info = _start_info(start)
@@ -131,36 +223,60 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
 
     kernel = NUTS(potential_fn=potential, dense_mass=True, max_tree_depth=max_tree_depth,
                   target_accept_prob=target_accept, adapt_mass_matrix=adapt_mass_matrix)
-    method = "parallel" if jax.local_device_count() >= chains and chains > 1 else "sequential"
-    n_chunks = -(-draws // chunk)
-    chunk = -(-draws // n_chunks)  # equal chunks: no draws made only to be cut off
-    mcmc = MCMC(kernel, num_warmup=warmup, num_samples=chunk, num_chains=chains,
-                chain_method=method, progress_bar=progress)  # fmt: skip
+    parallel = jax.local_device_count() >= chains and chains > 1
+    init, block = _chain_functions(kernel, warmup, x_map.size, parallel)
+    done = sum(r["x"].shape[1] for r in records)
     warm_seconds = 0.0
     if records:
-        state = records[-1]["state"]
+        state, it = records[-1]["state"], warmup + done
+    elif warm_record:
+        state, it = warm_record[-1]["state"], int(warm_record[-1]["iteration"])
     else:
-        t0 = time.perf_counter()
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1,)))
         batched = jax.jit(jax.vmap(potential))
         w0 = initial_draws(lambda w: batched(jnp.asarray(w)), chains, x_map.size, rng,
                            on_failure="map")  # fmt: skip
-        mcmc.warmup(jax.random.PRNGKey(seed), init_params=jnp.asarray(w0 if chains > 1 else w0[0]),
-                    collect_warmup=False, extra_fields=NUTS_EXTRA_FIELDS)  # fmt: skip
-        state = jax.block_until_ready(mcmc.post_warmup_state)
-        warm_seconds = time.perf_counter() - t0
-    for index in range(len(records), n_chunks):
-        mcmc.post_warmup_state = state
-        # init_params: a resumed run has a fresh kernel, which numpyro initialises from
-        # them (the loaded state, incl. its adaptation, is what is then continued).
-        mcmc.run(state.rng_key, init_params=state.z, extra_fields=NUTS_EXTRA_FIELDS)
-        state = mcmc.last_state
-        w = np.asarray(mcmc.get_samples(group_by_chain=True)).reshape(chains, chunk, -1)
-        extra = {k: np.asarray(v).reshape(chains, chunk)
-                 for k, v in mcmc.get_extra_fields(group_by_chain=True).items()}  # fmt: skip
-        record = {"x": x_map + w @ lower.T, "stats": extra, "state": state}
-        checkpoint.save("nuts", index, record)
-        records.append(record)
+        keys = jax.random.split(jax.random.PRNGKey(seed), chains)
+        state, it = init(keys, jnp.asarray(w0)), 0
+    total = warmup + draws
+    bar = Progress(progress)
+    pending: list[tuple] = []
+    n_block, t_loop, paced = FIRST_BLOCK, time.perf_counter(), False
+    with deferred_interrupt() as flag:
+        while it < total:
+            limit = warmup if it < warmup else warmup + min(draws, (done // chunk + 1) * chunk)
+            n = min(n_block, limit - it)
+            t0 = time.perf_counter()
+            state, out = block(state, n)
+            out = jax.device_get(out)
+            seconds = time.perf_counter() - t0
+            if it < warmup:
+                warm_seconds += seconds
+            else:
+                pending.append(tuple(np.asarray(o)[:, :n] for o in out))
+            it += n
+            if paced:  # the first block compiles: the pace is taken from the later ones
+                n_block = int(np.clip(round(BLOCK_SECONDS * n / max(seconds, 1e-9)), 1, BLOCK_MAX))
+            paced = True
+            bar.update(_progress_text(it, warmup, draws, chains, pending, records,
+                                      time.perf_counter() - t_loop))  # fmt: skip
+            if it == limit and pending:
+                records.append(_save_chunk(checkpoint, len(records), pending, state, x_map, lower))
+                done, pending = done + records[-1]["x"].shape[1], []
+            if flag.requested and it < total:
+                if pending:
+                    records.append(_save_chunk(checkpoint, len(records), pending, state, x_map,
+                                               lower))  # fmt: skip
+                    done = done + records[-1]["x"].shape[1]
+                if it <= warmup:
+                    checkpoint.save("nuts_warmup", 0, {"state": state, "iteration": it})
+                    saved = f"warm-up state after {it} of {warmup} iterations"
+                else:
+                    saved = f"{done} of {draws} draws per chain"
+                bar.close()
+                raise Interrupted(f"{saved} saved in {checkpoint.directory}")
+    bar.close(_progress_text(it, warmup, draws, chains, [], records, time.perf_counter() - t_loop))
+    method = "parallel" if parallel else "vectorized"
     x = np.concatenate([r["x"] for r in records], axis=1)[:, :draws]
     flat = constrain_draws(density, x.reshape(-1, x.shape[-1]))
     samples = {k: v.reshape((chains, draws) + v.shape[1:]) for k, v in flat.items()}

@@ -60,7 +60,33 @@ def _as_2col(name: str, arr, n: int) -> np.ndarray:
     return arr
 
 
-def plot_simulation(ts, ys, momenta, *, title: str | None = None, data=None) -> Figure:
+#: An angle axis is clipped to the data range widened by this fraction of it (each side)
+#: when the simulation or band goes beyond, so the data stay readable.
+CLIP_MARGIN = 0.25
+
+
+def _keep_data_readable(ax, data_deg, drawn_deg, note: str = "") -> bool:
+    """Clip ``ax``'s y range to the data (``data_deg``, any shape) widened by
+    :data:`CLIP_MARGIN` when what is drawn (``drawn_deg``) goes beyond it, and say so in
+    the axes (with ``note``).  Returns whether it clipped."""
+    data = np.asarray(data_deg, dtype=float)
+    data = data[np.isfinite(data)]
+    drawn = np.asarray(drawn_deg, dtype=float)
+    if data.size == 0:
+        return False
+    lo, hi = float(data.min()), float(data.max())
+    pad = CLIP_MARGIN * max(hi - lo, 1.0)
+    lo, hi = lo - pad, hi + pad
+    if np.all(np.isfinite(drawn)) and drawn.min() >= lo and drawn.max() <= hi:
+        return False
+    ax.set_ylim(lo, hi)
+    text = "axis clipped to the data's range; the model leaves it" + (f" ({note})" if note else "")
+    ax.text(0.01, 0.02, text, transform=ax.transAxes, fontsize="small", color="firebrick")
+    return True
+
+
+def plot_simulation(ts, ys, momenta, *, title: str | None = None, data=None,
+                    note: str = "") -> Figure:  # fmt: skip
     """Simulated trajectory in three panels (paper Figs. 4-6).
 
     Parameters
@@ -74,7 +100,10 @@ def plot_simulation(ts, ys, momenta, *, title: str | None = None, data=None) -> 
     title : str, optional
         Figure title.
     data : Experiment, optional
-        A measured record; its angles are drawn on panel (a) as thin grey/black lines.
+        A measured record; its angles are drawn on panel (a) as thin grey/black lines,
+        and panel (a) is clipped to their range if the simulation leaves it.
+    note : str, optional
+        Said on panel (a) when it is clipped (e.g. how far pitch goes).
 
     Returns
     -------
@@ -103,6 +132,9 @@ def plot_simulation(ts, ys, momenta, *, title: str | None = None, data=None) -> 
     _pair_panel(ax_c, ts, momenta, (r"$p_\theta$", r"$p_\psi$"),
                 "momentum [kg m$^2$/s]", "(c) generalized momenta", lw=1.5)
 
+    if data is not None:
+        _keep_data_readable(ax_a, np.degrees(np.asarray(data.y, dtype=float)),
+                            np.degrees(ys[:, :2]), note)  # fmt: skip
     for ax in (ax_a, ax_b, ax_c):
         _legend(ax)
     _finish(fig, (ax_a, ax_b, ax_c), title)
@@ -143,7 +175,7 @@ def plot_experiment(exp) -> Figure:
 
 
 def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
-               title: str | None = None) -> Figure:
+               title: str | None = None, health: str = "") -> Figure:
     """Posterior-predictive 50 % and 90 % bands for pitch and yaw with the data on top.
 
     Parameters
@@ -157,7 +189,11 @@ def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
     train_mask, test_mask : bool arrays, shape (N,)
         The training window is shaded white, the test window light grey and labelled.
     coverage : dict, optional
-        ``{window: {"theta": c90, "psi": c90}}``, shown in the legend.
+        ``{window: {"theta": c90, "psi": c90}}``, shown in the panel titles.
+    health : str, optional
+        A failed health check, e.g. ``"UNCONVERGED"`` or ``"UNCONVERGED, unphysical"``:
+        it leads the title and replaces the coverage claim.  Bands that leave the data's
+        range are clipped to it (and the panel says so).
     """
     t = np.asarray(t, dtype=float)
     q = np.degrees(np.quantile(np.asarray(y_pred), [0.05, 0.25, 0.5, 0.75, 0.95], axis=0))
@@ -175,12 +211,18 @@ def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
             t_test = t[np.asarray(test_mask, bool)]
             ax.axvspan(t_test[0], t_test[-1], color="0.85", zorder=-1, label="test window")
             ax.axvline(t_test[0], color="0.3", ls="--", lw=0.8)
-        if coverage:
+        if health:
+            ax.set_title(f"{name} ${sym}$ - {health}: no coverage claimed (see summary.json "
+                         "'health')", loc="left", fontsize="medium", color="firebrick")  # fmt: skip
+        elif coverage:
             text = ", ".join(f"{w}: {100 * c[('theta', 'psi')[j]]:.0f} %"
                              for w, c in coverage.items())  # fmt: skip
             ax.set_title(f"{name} ${sym}$ - 90 % band covers {text} of the data",
                          loc="left", fontsize="medium")  # fmt: skip
+        _keep_data_readable(ax, obs[:, j], q[:, :, j])
         ax.set_ylabel(f"${sym}$ [deg]")
         _legend(ax)
+    if health:
+        title = f"{health}: {title}" if title else health
     _finish(fig, axes, title)
     return fig

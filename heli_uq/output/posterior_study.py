@@ -15,16 +15,17 @@ import pathlib
 import time
 import warnings
 
-import arviz as az
 import numpy as np
 
 from heli_uq.data.record import Experiment
 from heli_uq.errors import ParameterError
 from heli_uq.inference import SAMPLERS, TARGET_ACCEPT, prepare_start, run_emcee, run_nuts
+from heli_uq.inference.nuts import check_draws_memory
 from heli_uq.io import atomic_write_text
 from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.tables import X0_NAMES
-from heli_uq.output.diagnostics import summarize
+from heli_uq.output.diagnostics import summarize, summary_table
+from heli_uq.output.health import check_health
 from heli_uq.output.inference_data import save_netcdf, to_inference_data
 from heli_uq.output.plots import plot_bands, save_figure
 from heli_uq.probability.problem import make_problem
@@ -80,7 +81,7 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
                      test=None, sampler="nuts", error="ar1", priors=None, chains=4, warmup=1000,
                      draws=1000, seed=0, resume=False, progress=True, walkers=None,
                      ensembles=None, n_starts=4, adapt_mass_matrix=True,
-                     target_accept=TARGET_ACCEPT, substeps=None):  # fmt: skip
+                     target_accept=TARGET_ACCEPT, substeps=None, log=None):  # fmt: skip
     """Run the whole posterior study and write its files; returns ``(idata, summary)``.
 
     Parameters
@@ -99,15 +100,36 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
         NUTS only, see :func:`heli_uq.inference.run_nuts`.
     substeps : int, optional
         RK4 substeps per sample (default: chosen from the model's stiffness).
+    log : callable, optional
+        Called with one line per stage (``"[  12 s] MAP: ..."``, elapsed time first).
+
+    The summary's ``health`` (:func:`heli_uq.output.health.check_health`) says whether
+    the result can be trusted; ``bands.png`` claims no coverage when it cannot.
     """
     if sampler not in SAMPLERS:
         raise ParameterError(f"sampler: expected one of {SAMPLERS}, found {sampler!r}")
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
+
+    def stage(text: str) -> None:
+        if log is not None:
+            log(f"[{time.perf_counter() - t0:5.0f} s] {text}")
+
     problem = make_problem(record, train, test, model=model, priors=priors, error=error,
                            substeps=substeps)  # fmt: skip
-    start = None if resume else prepare_start(problem, n_starts=n_starts, seed=seed)
+    per_chain = draws * (1 if sampler == "nuts" else walkers or 2 * problem.coords.dim + 2)
+    check_draws_memory(problem, chains * per_chain, f"draws: {chains} chains x {draws} draws"
+                       + ("" if sampler == "nuts" else " x walkers"))  # fmt: skip
+    start = None
+    if not resume:
+        stage(f"MAP: {n_starts} starts (least squares, then Newton on the log posterior; "
+              "the first compiles the model)")  # fmt: skip
+        start = prepare_start(problem, n_starts=n_starts, seed=seed)
+        stage(f"MAP done: -log p = {start.map_value:.6g}, Newton decrement "
+              f"{start.map_decrement:.2g}, {start.problem.substeps} substeps")  # fmt: skip
+    stage(f"{sampler}: {chains} chains x ({warmup} + {draws})"
+          + (" (resumed from the saved chunks)" if resume else ""))  # fmt: skip
     if sampler == "nuts":
         run = run_nuts(problem, out, chains=chains, warmup=warmup, draws=draws, seed=seed,
                        resume=resume, progress=progress, start=start,
@@ -116,6 +138,7 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
         run = run_emcee(problem, out, ensembles=ensembles or chains, walkers=walkers,
                         steps=warmup + draws, burn=warmup, seed=seed, resume=resume,
                         progress=progress, start=start)  # fmt: skip
+    stage("posterior-predictive simulations and diagnostics")
     idata = to_inference_data(run, seed=seed)
     problem = run.problem
     summary = summarize(idata, wall_seconds=None)
@@ -127,10 +150,11 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
                       f"draw of highest density (tolerance {SOLVER_TOL:g}); rerun with more "
                       "substeps",
                       RuntimeWarning, stacklevel=2)  # fmt: skip
+    summary["health"] = check_health(summary, solver_tol=SOLVER_TOL)
     summary["wall_s"] = time.perf_counter() - t0
+    stage("writing posterior.nc, summary.csv, summary.json, bands.png")
     save_netcdf(idata, out / "posterior.nc")
-    names = [v for v in idata.posterior.data_vars if v != "z"]
-    atomic_write_text(out / "summary.csv", az.summary(idata, var_names=names).to_csv())
+    atomic_write_text(out / "summary.csv", summary_table(idata).to_csv())
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=1, default=_jsonable))
     pp = idata.posterior_predictive["y_pred"]
     cd = idata.constant_data
@@ -139,6 +163,7 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
         np.asarray(cd["time"]), np.asarray(pp).reshape((-1,) + pp.shape[2:]),
         np.asarray(cd["y_obs"]), train_mask=np.asarray(cd["train_mask"]),
         test_mask=np.asarray(cd["test_mask"]), coverage=cov,
+        health=", ".join(summary["health"]["flags"]),
         title=(f"Posterior predictive ({sampler}, {error} errors, {problem.model.label}): "
                f"{pathlib.Path(problem.source).name}"),
     )  # fmt: skip

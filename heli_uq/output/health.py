@@ -1,0 +1,128 @@
+"""Health checks of a posterior run: is the result trustworthy enough to read?
+
+Every run is checked (:func:`check_health`, from the ``summary.json`` record of
+:func:`heli_uq.output.diagnostics.summarize`); a failed check gives one warning sentence
+with the measured value and the limit.  Checks, and the flag they raise:
+
+* **UNCONVERGED**: split R-hat above :data:`~heli_uq.output.diagnostics.RHAT_MAX`; bulk
+  or tail ESS below :data:`~heli_uq.output.diagnostics.ESS_MIN`; any divergent
+  transition; more than :data:`TREE_DEPTH_SATURATION_MAX` of the draws at the tree-depth
+  limit; a chain whose adapted step size collapsed (below :data:`STEP_SIZE_MIN` in the
+  whitened coordinates, where the posterior has unit scale, or :data:`STEP_SIZE_RATIO_MIN`
+  of another chain's); E-BFMI below :data:`~heli_uq.output.diagnostics.BFMI_MIN`; a MAP
+  whose Newton decrement is above :data:`MAP_DECREMENT_MAX` (the start of the sampler is
+  not the optimum); emcee's own warnings (chains shorter than 50 autocorrelation times,
+  low acceptance).
+* **unphysical**: posterior-predictive draws whose simulation leaves the physical range
+  (:mod:`heli_uq.simulation.physical`: |pitch| > 90 deg or non-finite); the fixed-step
+  solver off the adaptive reference by more than the tolerance.
+
+The result, ``{"ok", "flags", "warnings"}``, goes into ``summary.json`` (``health``), into
+the title of ``bands.png`` (which then claims no coverage), and into the CLI's warning
+block; ``--strict`` turns a failed check into a non-zero exit.
+"""
+
+from __future__ import annotations
+
+import math
+
+from heli_uq.output.diagnostics import BFMI_MIN, ESS_MIN, RHAT_MAX
+
+__all__ = ["check_health", "format_warnings", "TREE_DEPTH_SATURATION_MAX", "STEP_SIZE_MIN",
+           "STEP_SIZE_RATIO_MIN", "MAP_DECREMENT_MAX", "UNCONVERGED", "UNPHYSICAL"]  # fmt: skip
+
+#: Largest fraction of draws at the tree-depth limit: more means the trajectories are cut
+#: short (a collapsed step size or a ridge), and the chain explores by a random walk.
+TREE_DEPTH_SATURATION_MAX = 0.05
+#: Smallest healthy step size in the whitened coordinates (posterior sd ~ 1 in every
+#: direction; healthy runs adapt 0.1-0.6): below it a trajectory needs more than the
+#: 2^8 leapfrog steps of the tree-depth limit to move one posterior sd.
+STEP_SIZE_MIN = 1e-3
+#: A chain's step size below this fraction of another chain's has collapsed (a stuck chain).
+STEP_SIZE_RATIO_MIN = 1e-2
+#: Largest Newton decrement g^T H^-1 g [nats] of a converged MAP: its square root is the
+#: distance to the optimum in posterior sd (0.03 sd).
+MAP_DECREMENT_MAX = 1e-3
+UNCONVERGED = "UNCONVERGED"
+UNPHYSICAL = "unphysical"
+
+
+def _bad(value, limit, above: bool) -> bool:
+    """``value`` beyond ``limit`` (None and NaN are not measured: not a failure)."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return False
+    return value > limit if above else value < limit
+
+
+def _sampler_warnings(s: dict) -> list[str]:
+    out = []
+    if _bad(s.get("rhat_max"), RHAT_MAX, True):
+        out.append(f"R-hat {s['rhat_max']:.3g} > {RHAT_MAX} (worst: {s.get('worst_rhat_variable')}): "
+                   "the chains disagree")  # fmt: skip
+    for key, label in (("ess_bulk_min", "bulk"), ("ess_tail_min", "tail")):
+        if _bad(s.get(key), ESS_MIN, False):
+            out.append(f"{label} ESS {s[key]:.0f} < {ESS_MIN}"
+                       + (f" (worst: {s.get('worst_ess_variable')})" if label == "bulk" else ""))
+    if s.get("divergences", 0) > 0:
+        out.append(f"{s['divergences']} divergent transitions (of {s['chains'] * s['draws']} draws)")
+    if _bad(s.get("tree_depth_saturation"), TREE_DEPTH_SATURATION_MAX, True):
+        out.append(f"{100 * s['tree_depth_saturation']:.0f} % of draws at the tree-depth limit "
+                   f"(> {100 * TREE_DEPTH_SATURATION_MAX:.0f} %)")  # fmt: skip
+    steps = s.get("step_size")
+    if isinstance(steps, (int, float)):
+        steps = [steps]
+    if steps:
+        largest = max(steps)
+        for chain, step in enumerate(steps):
+            if step < STEP_SIZE_MIN:
+                out.append(f"chain {chain}'s step size collapsed to {step:.2g} (< {STEP_SIZE_MIN:g} "
+                           "in whitened coordinates)")  # fmt: skip
+            elif step < STEP_SIZE_RATIO_MIN * largest:
+                out.append(f"chain {chain}'s step size collapsed to {step:.2g}, less than "
+                           f"{STEP_SIZE_RATIO_MIN:g} of another chain's ({largest:.2g})")  # fmt: skip
+    if _bad(s.get("bfmi_min"), BFMI_MIN, False):
+        out.append(f"E-BFMI {s['bfmi_min']:.2g} < {BFMI_MIN}")
+    if _bad(s.get("map_decrement"), MAP_DECREMENT_MAX, True):
+        out.append(f"the MAP did not converge (Newton decrement {s['map_decrement']:.2g} > "
+                   f"{MAP_DECREMENT_MAX:g})")  # fmt: skip
+    out.extend(str(w) for w in (s.get("warnings") or []))  # emcee's own
+    return out
+
+
+def _physical_warnings(s: dict, solver_tol: float | None) -> list[str]:
+    out = []
+    bad = s.get("unphysical_draws") or {}
+    if bad.get("count", 0) > 0:
+        out.append(f"{bad['count']} of {bad['of']} posterior-predictive simulations leave the "
+                   "physical range (|pitch| > 90 deg or a blow-up)")  # fmt: skip
+    err = s.get("solver_error_rad")
+    if solver_tol is not None and err is not None and not err <= solver_tol:
+        out.append(f"the fixed-step solver is {err:.2g} rad from the adaptive reference "
+                   f"(tolerance {solver_tol:g}); more substeps are needed")  # fmt: skip
+    return out
+
+
+def check_health(summary: dict, *, solver_tol: float | None = None) -> dict:
+    """``{"ok": bool, "flags": [...], "warnings": [...]}`` of a ``summary.json`` record.
+
+    Parameters
+    ----------
+    summary : dict
+        From :func:`heli_uq.output.diagnostics.summarize` (with ``solver_error_rad`` if
+        the solver was checked).
+    solver_tol : float, optional
+        Largest acceptable ``solver_error_rad`` [rad].
+    """
+    sampler = _sampler_warnings(summary)
+    physical = _physical_warnings(summary, solver_tol)
+    flags = ([UNCONVERGED] if sampler else []) + ([UNPHYSICAL] if physical else [])
+    return {"ok": not flags, "flags": flags, "warnings": sampler + physical}
+
+
+def format_warnings(health: dict) -> str:
+    """The warning block: a header line and one ``  - ...`` line per failed check."""
+    n = len(health["warnings"])
+    lines = [f"WARNING: {', '.join(health['flags'])} result ({n} failed health check"
+             f"{'s' if n != 1 else ''}); do not read it as a calibrated posterior:"]
+    lines += [f"  - {w}" for w in health["warnings"]]
+    return "\n".join(lines)

@@ -96,3 +96,210 @@ def test_manifest_train_window_in_seconds(record):
     m = run_manifest(problem, SETTINGS)
     np.testing.assert_allclose(m["train_s"], [0.5, 2.0])
     np.testing.assert_allclose(m["test_s"], [2.0, 3.0])
+
+
+# --------------------------------------------------------------------------- health checks
+
+#: A summary record of a healthy run (values as ``summarize`` writes them).
+HEALTHY = {"chains": 4, "draws": 500, "rhat_max": 1.003, "ess_bulk_min": 1500.0,
+           "ess_tail_min": 1200.0, "divergences": 0, "tree_depth_saturation": 0.0,
+           "step_size": [0.31, 0.28, 0.33, 0.30], "bfmi_min": 0.9, "map_decrement": 1e-12,
+           "unphysical_draws": {"count": 0, "of": 200}, "solver_error_rad": None}  # fmt: skip
+#: One failed check each (the issue's measured failure where it gave one), and its flag.
+FAILURES = {
+    "R-hat": ({"rhat_max": 1.9}, "UNCONVERGED"),
+    "bulk ESS": ({"ess_bulk_min": 6.0}, "UNCONVERGED"),
+    "tail ESS": ({"ess_tail_min": 6.0}, "UNCONVERGED"),
+    "divergent": ({"divergences": 3}, "UNCONVERGED"),
+    "tree-depth": ({"tree_depth_saturation": 0.99}, "UNCONVERGED"),
+    "collapsed to 1.8e-23": ({"step_size": [0.31, 1.8e-23, 0.33, 0.30]}, "UNCONVERGED"),
+    "collapsed to 0.002": ({"step_size": [0.31, 0.002, 0.33, 0.30]}, "UNCONVERGED"),
+    "E-BFMI": ({"bfmi_min": 0.1}, "UNCONVERGED"),
+    "MAP did not converge": ({"map_decrement": 1.6}, "UNCONVERGED"),
+    "physical range": ({"unphysical_draws": {"count": 12, "of": 200}}, "unphysical"),
+    "adaptive reference": ({"solver_error_rad": 3e-3}, "unphysical"),
+}  # fmt: skip
+
+
+def test_health_of_a_healthy_run_is_ok():
+    from heli_uq.output.health import check_health
+
+    assert check_health(HEALTHY, solver_tol=1e-4) == {"ok": True, "flags": [], "warnings": []}
+
+
+@pytest.mark.parametrize("needle", list(FAILURES))
+def test_health_flags_each_failed_check(needle):
+    from heli_uq.output.health import check_health
+
+    change, flag = FAILURES[needle]
+    health = check_health({**HEALTHY, **change}, solver_tol=1e-4)
+    assert not health["ok"] and health["flags"] == [flag]
+    assert len(health["warnings"]) == 1 and needle in health["warnings"][0], health
+
+
+def _fake_sample_posterior(summary):
+    def fake(record, out, **kwargs):
+        return None, summary
+    return fake
+
+
+@pytest.mark.parametrize("strict, code", [(False, 0), (True, 3)])
+def test_cli_prints_the_warning_block_and_strict_fails(tmp_path, capsys, monkeypatch, strict, code):
+    """The CLI's wiring of the health result (the sampler itself is replaced)."""
+    from heli_uq.output import posterior_study
+    from heli_uq.output.health import check_health
+
+    rec = tmp_path / "rec.csv"
+    synthetic_experiment(duration=0.5, seed=1).to_csv(rec)
+    summary = {**HEALTHY, "rhat_max": 1.9, "ess_bulk_min": 6.0, "parameters": {}}
+    summary["health"] = check_health(summary)
+    monkeypatch.setattr(posterior_study, "sample_posterior", _fake_sample_posterior(summary))
+    from heli_uq.cli import main
+
+    argv = ["sample", "--data", str(rec), "--out", str(tmp_path / "o")] + (["--strict"] if strict else [])
+    assert main(argv) == code
+    err = capsys.readouterr().err
+    assert err.startswith("WARNING: UNCONVERGED result (2 failed health checks)"), err
+    assert "R-hat 1.9" in err and "bulk ESS 6" in err
+
+
+def test_bands_figure_says_unconverged_and_keeps_the_data_readable():
+    from heli_uq.output.plots import CLIP_MARGIN, plot_bands
+
+    t = np.arange(100) * 0.01
+    obs = np.column_stack([np.linspace(-0.5, -0.4, 100), np.linspace(0.0, 0.2, 100)])
+    rng = np.random.default_rng(0)
+    pred = obs[None] + 0.01 * rng.standard_normal((50, 100, 2))
+    pred[:30, 50:, 0] = np.linspace(0, -400, 50)  # pitch runs to -25,000 deg in most draws
+    train = np.ones(100, bool)
+    fig = plot_bands(t, pred, obs, train_mask=train, coverage={"train": {"theta": 0.9, "psi": 0.9}},
+                     title="T", health="UNCONVERGED")  # fmt: skip
+    titles = [ax.get_title(loc="left") for ax in fig.axes]
+    assert all("UNCONVERGED" in s and "covers" not in s for s in titles), titles
+    assert fig._suptitle.get_text().startswith("UNCONVERGED")
+    lo, hi = fig.axes[0].get_ylim()
+    span = np.degrees(obs[:, 0].max() - obs[:, 0].min())
+    assert lo >= np.degrees(obs[:, 0].min()) - CLIP_MARGIN * max(span, 1.0) - 1e-9
+    assert hi <= np.degrees(obs[:, 0].max()) + CLIP_MARGIN * max(span, 1.0) + 1e-9
+    healthy = plot_bands(t, pred[30:], obs, train_mask=train,
+                         coverage={"train": {"theta": 0.9, "psi": 0.9}}, title="T")  # fmt: skip
+    assert "covers train: 90 %" in healthy.axes[0].get_title(loc="left")
+
+
+# --------------------------------------------------------------------------- physical range
+
+
+def test_physical_range():
+    from heli_uq.simulation.physical import physical_range, unphysical_draws
+
+    ts = np.arange(5) * 0.1
+    ok = np.column_stack([np.radians([10, 45, 89.9, 0, -89.9]), np.radians([500, 0, 0, 0, 0])])
+    assert physical_range(ok).ok and physical_range(ok).describe(ts) == ""  # yaw may turn
+    out = ok.copy()
+    out[3, 0] = np.radians(-120.0)
+    report = physical_range(out)
+    assert not report.ok and report.first_exit == 3
+    assert report.describe(ts) == "UNPHYSICAL: pitch reaches 120 deg (beyond +-90 deg) from t = 0.3 s"
+    blown = ok.copy()
+    blown[2, 1] = np.nan
+    assert "blows up" in physical_range(blown).describe(ts)
+    np.testing.assert_array_equal(unphysical_draws(np.stack([ok, out, blown])), [False, True, True])
+
+
+def test_simulate_reports_an_unphysical_simulation(tmp_path, capsys):
+    from heli_uq.cli import main
+
+    rec = tmp_path / "rec.csv"
+    record = synthetic_experiment(duration=1.0, seed=4)
+    record.to_csv(rec)
+    params = tmp_path / "p.json"
+    params.write_text('{"K_theta_theta": 2.0}')  # 20x Table 1's pitch gain: pitch spins
+    argv = ["simulate", "--inputs", str(rec), "--params", str(params)]
+    assert main(argv + ["--out", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr().out
+    assert "UNPHYSICAL: pitch reaches" in out and "beyond +-90 deg" in out
+    assert main(["simulate", "--inputs", str(rec), "--out", str(tmp_path / "b")]) == 0
+    assert "UNPHYSICAL" not in capsys.readouterr().out
+
+
+def test_simulation_figure_clips_to_the_data():
+    from heli_uq.output.plots import CLIP_MARGIN, plot_simulation
+
+    record = synthetic_experiment(duration=1.0, seed=4)
+    ys = np.zeros((record.n, 4))
+    ys[:, 0] = np.linspace(0, 200, record.n)  # pitch spins to 11,000 deg
+    fig = plot_simulation(record.t, ys, np.zeros((record.n, 2)), data=record, note="UNPHYSICAL")
+    lo, hi = fig.axes[0].get_ylim()
+    data = np.degrees(record.y)
+    pad = CLIP_MARGIN * max(data.max() - data.min(), 1.0)
+    assert data.min() - pad - 1e-9 <= lo and hi <= data.max() + pad + 1e-9
+    assert any("UNPHYSICAL" in t.get_text() for t in fig.axes[0].texts)
+
+
+# --------------------------------------------------------------------------- limits
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["simulate", "--inputs", "table3", "--t-end", "1e9"], "--t-end 1e+09 s"),
+    (["simulate", "--inputs", "table3", "--dt", "1e-12"], "--dt 1e-12 s"),
+    (["sample", "--draws", "1000000000000", "--chains", "4"], "--draws: 4 chains x 1000000000000"),
+])  # fmt: skip
+def test_oversized_requests_are_refused_up_front(tmp_path, capsys, argv, needle):
+    from heli_uq.cli import main
+
+    rec = tmp_path / "rec.csv"
+    synthetic_experiment(duration=0.5, seed=1).to_csv(rec)
+    if argv[0] == "sample":
+        argv = argv + ["--data", str(rec)]
+    assert main(argv + ["--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("heli-uq: error: ") and "Traceback" not in err
+    assert needle in err and "would need about" in err and "iB of memory" in err, err
+
+
+# --------------------------------------------------------------------------- bounded outputs
+
+#: The default ``heli-uq run`` (issue 13): posterior.nc at most this size [bytes].
+DEFAULT_RUN_MAX_BYTES = 30e6
+#: Residual scales [rad] of the rig record's iid fit (pitch, yaw): the predictive noise
+#: sets how well y_pred compresses, so the test uses the rig's, not a quiet record's.
+RIG_SIGMA = (0.05, 0.33)
+
+
+def test_posterior_nc_of_the_default_run_is_bounded(tmp_path):
+    """The default run's layout (4 chains x 500 draws, 131 s at dt 0.01 s, train 91 s) on a
+    synthetic record, with draws close to the truth and the rig's residual scales."""
+    import arviz as az
+
+    from heli_uq.cli.run import RUN_TRAIN_FRACTION
+    from heli_uq.inference.density import constrain_draws, init_sites, log_density_setup
+    from heli_uq.inference.nuts import SamplerRun
+    from heli_uq.output.inference_data import PREDICTIVE_RESOLUTION, save_netcdf, to_inference_data
+    from heli_uq.simulation import SYNTHETIC_PARAMS
+
+    chains, draws = 4, 500
+    record = synthetic_experiment(duration=131.0, seed=3, noise_std=RIG_SIGMA)
+    split = round(RUN_TRAIN_FRACTION * record.duration, 2)
+    problem = make_problem(record, (0.0, split), (split, record.duration), error="iid")
+    x0 = np.concatenate([record.y[0], np.zeros(2)])
+    density = log_density_setup(problem, init_sites(problem, SYNTHETIC_PARAMS, x0, sigma=RIG_SIGMA))
+    rng = np.random.default_rng(0)
+    x = np.asarray(density.x_init) + 1e-3 * rng.standard_normal((chains * draws, density.dim))
+    flat = constrain_draws(density, x)
+    samples = {k: v.reshape((chains, draws) + v.shape[1:]) for k, v in flat.items()}
+    stats = {"diverging": np.zeros((chains, draws), bool), "num_steps": np.full((chains, draws), 15),
+             "energy": rng.normal(size=(chains, draws)), "accept_prob": rng.uniform(size=(chains, draws)),
+             "potential_energy": rng.normal(size=(chains, draws))}  # fmt: skip
+    run = SamplerRun(samples=samples, stats=stats, info={"sampler": "nuts", "max_tree_depth": 8},
+                     problem=problem)  # fmt: skip
+    path = tmp_path / "posterior.nc"
+    save_netcdf(to_inference_data(run, seed=0), path)
+    size = path.stat().st_size
+    assert size <= DEFAULT_RUN_MAX_BYTES, f"posterior.nc is {size / 1e6:.1f} MB"
+    idata = az.from_netcdf(path)
+    pp = idata.posterior_predictive
+    assert "thinned" in pp.attrs and "thinned" in idata.log_likelihood.attrs
+    assert pp["y_pred"].dtype == np.float32 and pp.sizes["draw"] < draws
+    y = np.asarray(pp["y_sim"], dtype=np.float64)
+    np.testing.assert_array_equal(np.round(y / PREDICTIVE_RESOLUTION) * PREDICTIVE_RESOLUTION, y)
+    assert np.all(np.isfinite(y)) and np.abs(y[..., 0]).max() < np.pi / 2  # a realistic run

@@ -81,7 +81,8 @@ def _keep_data_readable(ax, data_deg, drawn_deg, note: str = "") -> bool:
         return False
     ax.set_ylim(lo, hi)
     text = "axis clipped to the data's range; the model leaves it" + (f" ({note})" if note else "")
-    ax.text(0.01, 0.02, text, transform=ax.transAxes, fontsize="small", color="firebrick")
+    ax.text(0.01, 0.02, text, transform=ax.transAxes, fontsize="small", color="firebrick",
+            bbox={"facecolor": "white", "alpha": 0.8, "linewidth": 0})
     return True
 
 

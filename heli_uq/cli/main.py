@@ -81,12 +81,20 @@ EXIT_INTERRUPTED = 130
 
 def _interrupt_message(exc: KeyboardInterrupt, args, argv: list[str]) -> str:
     """One line: what was saved and the command that continues (if the command resumes)."""
-    from heli_uq.inference.interrupt import Interrupted
+    from pathlib import Path
 
-    if not isinstance(exc, Interrupted):
-        return "interrupted before anything was saved; run the command again"
+    from heli_uq.inference.interrupt import Interrupted
+    from heli_uq.inference.manifest import MANIFEST_FILE
+
     again = [PROG, *argv] + ([] if "--resume" in argv else ["--resume"])
-    return f"interrupted: {exc.saved}; continue with: {shlex.join(again)}"
+    if isinstance(exc, Interrupted):
+        return f"interrupted: {exc.saved}; continue with: {shlex.join(again)}"
+    out = getattr(args, "out", None)
+    saved = sorted(Path(out).rglob(MANIFEST_FILE)) if out and hasattr(args, "resume") else []
+    if saved:  # between sampler blocks' safe points (MAP, post-processing): chunks are on disk
+        return (f"interrupted; the draws saved in {saved[0].parent} continue with: "
+                f"{shlex.join(again)}")  # fmt: skip
+    return "interrupted before anything was saved; run the command again"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -105,7 +105,12 @@ def add_parser(subparsers):
             "      --effects) on the first 91/131 of the record, bands with the rest\n"
             "      held out\n"
             "The real record is used when available ($HELI_UQ_DATA or a checked\n"
-            "download); otherwise the embedded synthetic default (seed 0) is used."
+            "download); otherwise the embedded synthetic default (seed 0) is used.\n"
+            "Simulations that leave the physical range (|pitch| > 90 deg, blow-ups) are\n"
+            "reported as UNPHYSICAL; failed health checks of the posterior as a warning\n"
+            "block (see 'heli-uq sample --help').\n\n"
+            "exit status: 0 ok, 1 the Table 1 simulation diverged, 2 bad input or a refused\n"
+            "--resume, 3 a failed health check under --strict, 130 interrupted"
         ),
         formatter_class=Formatter,
     )

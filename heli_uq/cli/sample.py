@@ -87,7 +87,15 @@ def add_parser(subparsers):
             "  heli-uq sample --data experimental --train 0:91 --test 91:131 --out out/post\n"
             "  heli-uq sample --data experimental --window 0:30 --sampler emcee --out out/em\n"
             "  heli-uq sample --data rec.csv --effects yaw:coulomb_friction --error iid \\\n"
-            "      --out out/friction\n\n" + EFFECTS_HELP
+            "      --out out/friction\n\n"
+            "health checks: R-hat, ESS, divergences, tree-depth saturation, collapsed step size,\n"
+            "  MAP convergence, unphysical predictive simulations; failures are printed as a\n"
+            "  warning block, stored in summary.json ('health') and named in bands.png's title.\n"
+            "interrupt (Ctrl-C): stops within seconds, keeps the finished draws and prints the\n"
+            "  command that continues them (--resume).\n"
+            "exit status: 0 ok (health warnings only printed), 2 bad input or a refused\n"
+            "  --resume, 3 a failed health check under --strict, 130 interrupted\n\n"
+            + EFFECTS_HELP
         ),
         formatter_class=Formatter,
     )
@@ -118,7 +126,9 @@ def add_parser(subparsers):
     p.add_argument("--walkers", type=int, default=None,
                    help="emcee walkers per ensemble (default: 2 * dim + 2)")
     p.add_argument("--error", choices=["iid", "ar1"], default="ar1",
-                   help="residual model per output (default: ar1)")
+                   help="residual model per output (default: ar1, the conservative choice for"
+                        " residuals correlated in time; 'heli-uq run' uses iid, which calibrates"
+                        " the rig record's pitch and keeps the yaw level honest; see README)")
     add_prior_options(p)
     p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     add_trust_options(p)

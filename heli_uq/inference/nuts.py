@@ -227,10 +227,12 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     init, block = _chain_functions(kernel, warmup, x_map.size, parallel)
     done = sum(r["x"].shape[1] for r in records)
     warm_seconds = 0.0
-    if records:
-        state, it = records[-1]["state"], warmup + done
-    elif warm_record:
-        state, it = warm_record[-1]["state"], int(warm_record[-1]["iteration"])
+    if records or warm_record:
+        saved = records[-1] if records else warm_record[-1]
+        state, it = saved["state"], (warmup + done if records else int(saved["iteration"]))
+        # numpyro builds the kernel's step function in ``init``: trace it (no computation)
+        # so that the loaded state can be continued.
+        jax.eval_shape(init, jax.random.split(jax.random.PRNGKey(seed), chains), state.z)
     else:
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1,)))
         batched = jax.jit(jax.vmap(potential))

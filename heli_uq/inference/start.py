@@ -123,13 +123,15 @@ def _x0_guess(problem: Problem) -> np.ndarray:
     return guess
 
 
-def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0) -> list:
+def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, *,
+               log=None) -> list:  # fmt: skip
     """Starting points (flat vectors) of the MAP, each refined by :func:`least_squares_fit`.
 
     Guesses: the model's start values (Table 1 for the mechanics), its defaults where valid
     (Table 2) and ``n - 2`` perturbations.  After the least-squares stage the residual
     scale starts at the residual RMS and the AR(1) correlation time at the one of the
     residuals' lag-1 autocorrelation, so the MAP search starts close to its optimum.
+    ``log``, if given, is called with one line per finished start.
     """
     coords = problem.coords
     fit = least_squares_fit(problem)
@@ -139,9 +141,13 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0) -> 
     alternative = {**_alternative_values(problem), **fixed}
     linear = [p.name for p in problem.model.parameters() if p.interval[0] < 0]  # may be <= 0
     out = []
-    for params in start_parameters(coords.free, base, n, seed, alternative=alternative,
-                                   linear=linear):  # fmt: skip
-        z, x0, _ = (np.asarray(a) for a in fit(coords.from_physical(params), _x0_guess(problem)))
+    t0 = time.perf_counter()
+    for k, params in enumerate(start_parameters(coords.free, base, n, seed, alternative=alternative,
+                                                linear=linear)):  # fmt: skip
+        z, x0, cost = (np.asarray(a) for a in fit(coords.from_physical(params), _x0_guess(problem)))
+        if log is not None:
+            log(f"MAP start {k + 1}/{n}: least-squares cost {float(cost):.6g} "
+                f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
         resid = np.asarray(sim(jnp.asarray(z), jnp.asarray(x0)))[:, :2] - problem.y[: problem.n_train]
         if not np.all(np.isfinite(resid)):
             continue
@@ -224,13 +230,14 @@ def required_substeps(problem: Problem, params: dict) -> int:
 
 
 def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
-                  map_maxiter: int = 0) -> Start:  # fmt: skip
+                  map_maxiter: int = 0, log=None) -> Start:  # fmt: skip
     """Multi-start MAP, substeps check and Laplace covariance (module docstring).
 
     ``map_maxiter``: L-BFGS steps per start before the Newton polish.  The default 0 goes
     straight from the least-squares fits to Newton, which reaches the same optimum (to
     1e-9 nats on the rig record and the test records) in about half the time: compiling
     L-BFGS with its line search around the simulator costs more than the Newton steps.
+    ``log``: called with a progress line per least-squares start.
 
     Raises
     ------
@@ -239,7 +246,8 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
     """
     t0 = time.perf_counter()
     density = log_density_setup(problem, seed=seed)
-    result = find_map(density, map_starts(problem, density, n_starts, seed), maxiter=map_maxiter)
+    result = find_map(density, map_starts(problem, density, n_starts, seed, log=log),
+                      maxiter=map_maxiter)  # fmt: skip
     if not np.isfinite(result.value):
         raise ParameterError(
             "no MAP start gave a finite log density: the model diverges from every start "

@@ -125,7 +125,7 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     if not resume:
         stage(f"MAP: {n_starts} starts (least squares, then Newton on the log posterior; "
               "the first compiles the model)")  # fmt: skip
-        start = prepare_start(problem, n_starts=n_starts, seed=seed)
+        start = prepare_start(problem, n_starts=n_starts, seed=seed, log=stage)
         stage(f"MAP done: -log p = {start.map_value:.6g}, Newton decrement "
               f"{start.map_decrement:.2g}, {start.problem.substeps} substeps")  # fmt: skip
     stage(f"{sampler}: {chains} chains x ({warmup} + {draws})"

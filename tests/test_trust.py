@@ -432,3 +432,35 @@ def test_sigint_stops_a_cli_run_within_seconds(tmp_path):
     assert "Traceback" not in err
     assert (out / "chunks" / "manifest.json").is_file()
     assert list((out / "chunks").glob("nuts_warmup_chunk_*.pkl"))
+
+
+# --------------------------------------------------------------------------- progress
+
+
+def test_progress_has_no_escape_codes_off_a_terminal():
+    import io
+
+    from heli_uq.inference.interrupt import Progress
+
+    log = io.StringIO()
+    bar = Progress(True, log)
+    assert not bar.tty
+    bar.update("NUTS warm-up (2 chains): 2/50 iterations, 1 s")
+    bar.update("NUTS warm-up (2 chains): 4/50 iterations, 2 s")  # within 30 s: not repeated
+    bar.close("NUTS sampling (2 chains): 50/50 draws, 9 s; divergences per chain 0 0")
+    assert log.getvalue() == ("NUTS warm-up (2 chains): 2/50 iterations, 1 s\n"
+                              "NUTS sampling (2 chains): 50/50 draws, 9 s; divergences per chain 0 0\n")
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    term = Terminal()
+    bar = Progress(True, term)
+    bar.update("a")
+    bar.update("b")
+    bar.close()
+    assert term.getvalue().startswith("\ra") and "\rb" in term.getvalue()
+    silent = io.StringIO()
+    Progress(False, silent).update("x", force=True)
+    assert silent.getvalue() == ""

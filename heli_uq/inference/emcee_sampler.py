@@ -38,6 +38,7 @@ import numpy as np
 from heli_uq.errors import ParameterError
 from heli_uq.inference.checkpoint import Checkpoint
 from heli_uq.inference.density import LogDensity, constrain_draws, coordinate_names, log_density_setup
+from heli_uq.inference.interrupt import Progress
 from heli_uq.inference.manifest import run_manifest
 from heli_uq.inference.nuts import SamplerRun
 from heli_uq.inference.start import Start, initial_draws, prepare_start, whitening
@@ -151,11 +152,14 @@ def _run_ensemble(density, start_info, ensemble, *, walkers, steps, chunk, seed,
         state = emcee.State(coords, log_prob=lp, random_state=random_state)
     sampler = emcee.EnsembleSampler(walkers, density.dim, log_prob, vectorize=True)
     desc = f"emcee ensemble {ensemble + 1}/{n_ensembles}"
+    line = Progress(progress)  # emcee's tqdm bar on a terminal, plain lines otherwise
     while done < steps:
         n = min(chunk, steps - done)
         sampler.reset()
         bar = {"desc": f"{desc}, steps {done}-{done + n}"}
-        state = sampler.run_mcmc(state, n, progress=progress, progress_kwargs=bar)
+        state = sampler.run_mcmc(state, n, progress=progress and line.tty, progress_kwargs=bar)
+        if not line.tty:
+            line.update(f"{desc}: {done + n}/{steps} steps", force=True)
         record = {"chain": sampler.get_chain(), "log_prob": sampler.get_log_prob(),
                   "accepted": np.asarray(sampler.backend.accepted).copy(),
                   "coords": np.asarray(state.coords), "log_prob_last": np.asarray(state.log_prob),

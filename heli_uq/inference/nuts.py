@@ -93,7 +93,7 @@ def _start_info(start: Start) -> dict:
     return dict(start.info(), x_map=np.asarray(start.x_map), covariance=np.asarray(start.covariance))
 
 
-def _chain_functions(kernel, warmup: int, dim: int, parallel: bool):
+def _chain_functions(kernel, warmup: int, parallel: bool):
     """``init(keys, w0) -> state`` and ``block(state, n) -> (state, out)`` for all chains:
     ``n`` (<= :data:`BLOCK_MAX`, traced: one compilation) NUTS iterations of every chain,
     ``out`` = per-iteration ``(w, diverging, num_steps, energy, accept_prob,
@@ -224,7 +224,7 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     kernel = NUTS(potential_fn=potential, dense_mass=True, max_tree_depth=max_tree_depth,
                   target_accept_prob=target_accept, adapt_mass_matrix=adapt_mass_matrix)
     parallel = jax.local_device_count() >= chains and chains > 1
-    init, block = _chain_functions(kernel, warmup, x_map.size, parallel)
+    init, block = _chain_functions(kernel, warmup, parallel)
     done = sum(r["x"].shape[1] for r in records)
     warm_seconds = 0.0
     if records or warm_record:

@@ -149,9 +149,8 @@ def simulate_to_files(out: Path, params: dict, x0, u, dt: float, *, model=None, 
     source = "Table 3 (zero voltages)" if record is None else Path(record.source).name
     title = f"Simulation ({model.label}): inputs {source}, parameters {params_label}"
     if unphysical:
-        title = f"{unphysical.split(':')[0]} - {title}"
-    png_path = save_figure(plot_simulation(ts, ys, p, title=title, data=record, note=unphysical),
-                           out / "simulation.png")  # fmt: skip
+        title = f"{unphysical}\n{title}"
+    png_path = save_figure(plot_simulation(ts, ys, p, title=title, data=record), out / "simulation.png")
     summary = (f"simulated {ys.shape[0]} samples (dt = {dt:g} s, t = {ts[0]:g}..{ts[-1]:g} s, "
                f"{substeps} RK4 substeps) -> {csv_path}, {png_path}")  # fmt: skip
     if record is not None:

@@ -13,6 +13,7 @@ the one of the new call and refuses any difference, naming every differing setti
 
 from __future__ import annotations
 
+import importlib
 import importlib.metadata
 import json
 
@@ -30,9 +31,10 @@ _QUOTE_MAX = 32
 
 
 def library_versions() -> dict[str, str | None]:
-    """``{distribution: version}`` of :data:`LIBRARIES` (None if not installed)."""
-    out = {}
-    for name in LIBRARIES:
+    """``{distribution: version}`` of :data:`LIBRARIES` (None if not installed); heli_uq's
+    own from ``heli_uq.__version__`` (an editable install's metadata can be stale)."""
+    out = {"heli_uq": importlib.import_module("heli_uq").__version__}
+    for name in LIBRARIES[1:]:
         try:
             out[name] = importlib.metadata.version(name)
         except importlib.metadata.PackageNotFoundError:

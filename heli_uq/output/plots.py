@@ -224,6 +224,6 @@ def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
         ax.set_ylabel(f"${sym}$ [deg]")
         _legend(ax)
     if health:
-        title = f"{health}: {title}" if title else health
+        title = f"{health} (see summary.json)\n{title}" if title else health
     _finish(fig, axes, title)
     return fig

@@ -1,4 +1,5 @@
-"""Output: InferenceData (NetCDF) with the model, diagnostics, figures, the posterior study.
+"""Output: InferenceData (NetCDF) with the model, diagnostics and health checks, figures,
+the posterior study.
 
 Layer 7 (imports everything below it; nothing imports it but the CLI).
 """
@@ -6,6 +7,7 @@ Layer 7 (imports everything below it; nothing imports it but the CLI).
 from heli_uq.output.diagnostics import convergence as convergence
 from heli_uq.output.diagnostics import predictive_checks as predictive_checks
 from heli_uq.output.diagnostics import summarize as summarize
+from heli_uq.output.health import check_health as check_health
 from heli_uq.output.inference_data import load_posterior as load_posterior
 from heli_uq.output.inference_data import save_netcdf as save_netcdf
 from heli_uq.output.inference_data import to_inference_data as to_inference_data
@@ -15,6 +17,6 @@ from heli_uq.output.plots import plot_simulation as plot_simulation
 from heli_uq.output.posterior_study import parameter_summary as parameter_summary
 from heli_uq.output.posterior_study import sample_posterior as sample_posterior
 
-__all__ = ["convergence", "predictive_checks", "summarize", "load_posterior", "save_netcdf",
+__all__ = ["convergence", "predictive_checks", "summarize", "check_health", "load_posterior", "save_netcdf",
            "to_inference_data", "plot_bands", "plot_experiment", "plot_simulation",
            "parameter_summary", "sample_posterior"]  # fmt: skip

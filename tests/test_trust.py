@@ -244,13 +244,14 @@ def test_simulation_figure_clips_to_the_data():
     (["simulate", "--inputs", "table3", "--t-end", "1e9"], "--t-end 1e+09 s"),
     (["simulate", "--inputs", "table3", "--dt", "1e-12"], "--dt 1e-12 s"),
     (["sample", "--draws", "1000000000000", "--chains", "4"], "--draws: 4 chains x 1000000000000"),
+    (["run", "--draws", "100000000000"], "--draws: 4 chains x 100000000000"),
 ])  # fmt: skip
 def test_oversized_requests_are_refused_up_front(tmp_path, capsys, argv, needle):
     from heli_uq.cli import main
 
     rec = tmp_path / "rec.csv"
     synthetic_experiment(duration=0.5, seed=1).to_csv(rec)
-    if argv[0] == "sample":
+    if argv[0] in ("sample", "run"):
         argv = argv + ["--data", str(rec)]
     assert main(argv + ["--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err

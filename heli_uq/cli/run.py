@@ -47,6 +47,16 @@ def _record_for_run(spec: str, out: Path):
     return read_record(path)
 
 
+def _check_posterior_size(record, model, args) -> None:
+    """Refuse draws that cannot fit in memory before any stage runs."""
+    from heli_uq.inference.nuts import check_draws_memory
+    from heli_uq.probability.problem import make_problem
+
+    problem = make_problem(record, model=model, error="iid")
+    check_draws_memory(problem, args.chains * args.draws,
+                       f"draws: {args.chains} chains x {args.draws} draws")  # fmt: skip
+
+
 def cmd_run(args) -> int:
     """The main job: show the record, simulate Table 3 and the record (Tables 2 and 1), then
     the posterior (NUTS, iid errors) with a train/test split and its bands."""
@@ -60,6 +70,7 @@ def cmd_run(args) -> int:
     model = model_from_args(args)
     out = out_dir(args.out)
     record = _record_for_run(args.data, out)
+    _check_posterior_size(record, model, args)
     print(show_record(record, out_dir(out / "data")))
     import numpy as np
 

@@ -278,6 +278,8 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
                 bar.close()
                 raise Interrupted(f"{saved} saved in {checkpoint.directory}")
     bar.close(_progress_text(it, warmup, draws, chains, [], records, time.perf_counter() - t_loop))
+    if flag.requested:  # in the last block: every draw is saved, stop before post-processing
+        raise Interrupted(f"all {draws} draws per chain saved in {checkpoint.directory}")
     method = "parallel" if parallel else "vectorized"
     x = np.concatenate([r["x"] for r in records], axis=1)[:, :draws]
     flat = constrain_draws(density, x.reshape(-1, x.shape[-1]))

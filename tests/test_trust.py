@@ -182,9 +182,13 @@ def test_bands_figure_says_unconverged_and_keeps_the_data_readable():
     span = np.degrees(obs[:, 0].max() - obs[:, 0].min())
     assert lo >= np.degrees(obs[:, 0].min()) - CLIP_MARGIN * max(span, 1.0) - 1e-9
     assert hi <= np.degrees(obs[:, 0].max()) + CLIP_MARGIN * max(span, 1.0) + 1e-9
-    healthy = plot_bands(t, pred[30:], obs, train_mask=train,
+    drift = pred[30:].copy()
+    drift[:, 50:, 1] -= 0.5 * (obs[:, 1].max() - obs[:, 1].min())  # yaw drifts off: keep it shown
+    healthy = plot_bands(t, drift, obs, train_mask=train,
                          coverage={"train": {"theta": 0.9, "psi": 0.9}}, title="T")  # fmt: skip
     assert "covers train: 90 %" in healthy.axes[0].get_title(loc="left")
+    assert healthy.axes[1].get_ylim()[0] <= np.degrees(drift[..., 1].min())
+    assert not healthy.axes[1].texts  # no clipping note
 
 
 # --------------------------------------------------------------------------- physical range

@@ -60,26 +60,29 @@ def _as_2col(name: str, arr, n: int) -> np.ndarray:
     return arr
 
 
-#: An angle axis is clipped to the data range widened by this fraction of it (each side)
-#: when the simulation or band goes beyond, so the data stay readable.
+#: An angle axis is clipped when what is drawn goes beyond the data's range widened by this
+#: fraction of it on either side (a blow-up, not a model that drifts off the data)...
+CLIP_TRIGGER = 1.0
+#: ...and then shows the data's range widened by this fraction of it on each side.
 CLIP_MARGIN = 0.25
 
 
 def _keep_data_readable(ax, data_deg, drawn_deg, note: str = "") -> bool:
     """Clip ``ax``'s y range to the data (``data_deg``, any shape) widened by
-    :data:`CLIP_MARGIN` when what is drawn (``drawn_deg``) goes beyond it, and say so in
-    the axes (with ``note``).  Returns whether it clipped."""
+    :data:`CLIP_MARGIN` when what is drawn (``drawn_deg``) leaves the data's range widened
+    by :data:`CLIP_TRIGGER`, and say so in the axes (with ``note``).  Returns whether it
+    clipped."""
     data = np.asarray(data_deg, dtype=float)
     data = data[np.isfinite(data)]
     drawn = np.asarray(drawn_deg, dtype=float)
-    if data.size == 0:
+    drawn = drawn[np.isfinite(drawn)]
+    if data.size == 0 or drawn.size == 0:
         return False
     lo, hi = float(data.min()), float(data.max())
-    pad = CLIP_MARGIN * max(hi - lo, 1.0)
-    lo, hi = lo - pad, hi + pad
-    if np.all(np.isfinite(drawn)) and drawn.min() >= lo and drawn.max() <= hi:
+    span = max(hi - lo, 1.0)
+    if drawn.min() >= lo - CLIP_TRIGGER * span and drawn.max() <= hi + CLIP_TRIGGER * span:
         return False
-    ax.set_ylim(lo, hi)
+    ax.set_ylim(lo - CLIP_MARGIN * span, hi + CLIP_MARGIN * span)
     text = "axis clipped to the data's range; the model leaves it" + (f" ({note})" if note else "")
     ax.text(0.01, 0.02, text, transform=ax.transAxes, fontsize="small", color="firebrick",
             bbox={"facecolor": "white", "alpha": 0.8, "linewidth": 0})

@@ -7,6 +7,7 @@ Subcommands (one module each)::
     heli-uq data show experimental|FILE.csv [--window a:b] --out DIR
     heli-uq sample --data experimental|FILE.csv [--effects ...] [--train a:b --test c:d] ...
     heli-uq identifiability --data experimental|FILE.csv [--effects ...] [--free NAMES] ...
+    heli-uq discover experimental|FILE.csv [--train a:b --test c:d] [--max-effects N] --out DIR
 
 Adding a subcommand is one module with ``add_parser(subparsers)`` (building its parser,
 setting ``handler=<function(args) -> int>`` and returning the parser) plus one entry in
@@ -31,7 +32,7 @@ import re
 import shlex
 import sys
 
-from heli_uq.cli import data, identifiability, run, sample, simulate
+from heli_uq.cli import data, discover, identifiability, run, sample, simulate
 from heli_uq.cli.options import Formatter
 from heli_uq.errors import HeliUQError
 
@@ -39,7 +40,7 @@ __all__ = ["main", "build_parser"]
 
 PROG = "heli-uq"
 #: Subcommand modules, in the order shown by ``--help``.
-_COMMANDS = (run, simulate, data, sample, identifiability)
+_COMMANDS = (run, simulate, data, sample, identifiability, discover)
 
 
 def build_parser() -> argparse.ArgumentParser:

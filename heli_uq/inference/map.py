@@ -69,8 +69,12 @@ def _lbfgs(potential, x0, maxiter: int, gtol: float):
 
 
 def find_map(density: LogDensity, starts: list[np.ndarray], *, maxiter: int = 200,
-             gtol: float = 1e-4, newton_steps: int = NEWTON_STEPS) -> MapResult:  # fmt: skip
+             gtol: float = 1e-4, newton_steps: int = NEWTON_STEPS,
+             polish_best: int | None = None) -> MapResult:  # fmt: skip
     """Minimise ``density.potential`` from every start; return the best finite optimum.
+
+    ``polish_best``: Newton-polish only this many of the starts, those with the lowest
+    ``-log p`` after L-BFGS (default all).
 
     Every start runs at most ``maxiter`` L-BFGS steps (none if ``maxiter <= 0``), then
     damped Newton steps on the finite-difference Hessian (:func:`newton_polish`); the
@@ -89,12 +93,13 @@ def find_map(density: LogDensity, starts: list[np.ndarray], *, maxiter: int = 20
             return x, density.potential_jit(x), 0
 
     results = []
-    for x in starts:
-        xs, v, k = run(jnp.asarray(x))
-        xs, v = np.asarray(xs), float(v)
+    first = [(np.asarray(xs), float(v), int(k)) for xs, v, k in (run(jnp.asarray(x)) for x in starts)]
+    order = np.argsort([v if np.isfinite(v) else np.inf for _, v, _ in first], kind="stable")
+    chosen = set(order[: len(first) if polish_best is None else polish_best].tolist())
+    for i, (xs, v, k) in enumerate(first):
         ok = np.isfinite(v) and np.all(np.isfinite(xs))
         polish = (float("nan"), float("nan"), 0)
-        if ok and newton_steps > 0:
+        if ok and newton_steps > 0 and i in chosen:
             xs, v, *polish = newton_polish(density, xs, newton_steps)
         ok = ok and np.isfinite(v) and np.all(np.isfinite(xs))
         results.append((v if ok else np.inf, xs, int(k), polish))

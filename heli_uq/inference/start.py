@@ -28,7 +28,7 @@ import numpy as np
 from heli_uq.errors import ParameterError
 from heli_uq.inference.density import LogDensity, constrain_draws, init_sites, log_density_setup
 from heli_uq.inference.levenberg import masked_least_squares
-from heli_uq.inference.map import find_map, laplace, newton_polish
+from heli_uq.inference.map import NEWTON_STEPS, find_map, laplace, newton_polish
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.probability.likelihood import whitened_residuals
 from heli_uq.probability.problem import Problem
@@ -82,18 +82,18 @@ def _alternative_values(problem: Problem) -> dict:
 
 
 def least_squares_fit(problem: Problem, *, max_steps: int = 100):
-    """A compiled ``fit(z0, x0) -> (z, x0, cost)``: Levenberg-Marquardt of all coordinates
-    ``z`` and the free initial-state entries on the training window (module docstring)."""
+    """A compiled ``fit(z0, x0, sigma=LSQ_SIGMA) -> (z, x0, cost)``: Levenberg-Marquardt of
+    all coordinates ``z`` and the free initial-state entries on the training window, the
+    residuals of (theta, psi) divided by ``sigma`` [rad] (module docstring)."""
     coords = problem.coords
     n, d = problem.n_train, coords.dim
     y = jnp.asarray(problem.y[:n])
-    sigma = jnp.asarray(LSQ_SIGMA)
     mu, sd = (jnp.asarray(a) for a in coords.prior_moments())
     x0_priors = [problem.priors.x0_prior(name, problem.x0_center) for name in X0_NAMES]
     x0_mu = jnp.asarray([p.a for p in x0_priors])
     x0_sd = jnp.asarray([p.b if p.free else 1.0 for p in x0_priors])
 
-    def residuals(v):
+    def residuals(v, sigma):
         z, x_init = v[:d], v[d:]
         phys = coords.to_physical(z)
         sol = problem.solve(phys, x_init, n, gradients="autodiff")
@@ -105,10 +105,13 @@ def least_squares_fit(problem: Problem, *, max_steps: int = 100):
     fixed = jnp.asarray([False] * d + [not p.free for p in x0_priors])
 
     @jax.jit
-    def fit(z0, x0):
+    def compiled(z0, x0, sigma):
         v0 = jnp.concatenate([jnp.asarray(z0), jnp.asarray(x0)])
-        v, cost = masked_least_squares(residuals, v0, fixed, v0, max_steps)
+        v, cost = masked_least_squares(lambda v: residuals(v, sigma), v0, fixed, v0, max_steps)
         return v[:d], v[d:], cost
+
+    def fit(z0, x0, sigma=LSQ_SIGMA):
+        return compiled(z0, x0, jnp.asarray(sigma, dtype=jnp.float64))
 
     return fit
 
@@ -123,14 +126,19 @@ def _x0_guess(problem: Problem) -> np.ndarray:
     return guess
 
 
-def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, *,
+def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, guesses=(), *,
                log=None) -> list:  # fmt: skip
     """Starting points (flat vectors) of the MAP, each refined by :func:`least_squares_fit`.
 
-    Guesses: the model's start values (Table 1 for the mechanics), its defaults where valid
-    (Table 2) and ``n - 2`` perturbations.  After the least-squares stage the residual
-    scale starts at the residual RMS and the AR(1) correlation time at the one of the
-    residuals' lag-1 autocorrelation, so the MAP search starts close to its optimum.
+    Each guess is fitted twice, the second time with the residual scales of the first fit
+    (so the least-squares weighting of pitch against yaw is the MAP's, and the Newton polish
+    starts next to the optimum).
+    Guesses: ``guesses`` (dicts of physical values, e.g. a fit of a smaller model; missing
+    names take the model's start values), then the model's start values (Table 1 for the
+    mechanics), its defaults where valid (Table 2) and ``n - 2`` perturbations.  After the
+    least-squares stage the residual scale starts at the residual RMS and the AR(1)
+    correlation time at the one of the residuals' lag-1 autocorrelation, so the MAP search
+    starts close to its optimum.
     ``log``, if given, is called with one line per finished start.
     """
     coords = problem.coords
@@ -142,8 +150,9 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, *,
     linear = [p.name for p in problem.model.parameters() if p.interval[0] < 0]  # may be <= 0
     out = []
     t0 = time.perf_counter()
-    for k, params in enumerate(start_parameters(coords.free, base, n, seed, alternative=alternative,
-                                                linear=linear)):  # fmt: skip
+    warm = [{**base, **{k: float(v) for k, v in g.items() if k in base}, **fixed} for g in guesses][:n]
+    for k, params in enumerate(warm + start_parameters(coords.free, base, n, seed, alternative=alternative,
+                                                       linear=linear)[: max(n - len(warm), 0)]):  # fmt: skip
         z, x0, cost = (np.asarray(a) for a in fit(coords.from_physical(params), _x0_guess(problem)))
         if log is not None:
             log(f"MAP start {k + 1}/{n}: least-squares cost {float(cost):.6g} "
@@ -151,6 +160,12 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, *,
         resid = np.asarray(sim(jnp.asarray(z), jnp.asarray(x0)))[:, :2] - problem.y[: problem.n_train]
         if not np.all(np.isfinite(resid)):
             continue
+        # again with the residual scales of this fit (the MAP's weighting of theta vs psi)
+        sigma = np.maximum(np.sqrt(np.mean(resid**2, axis=0)), 1e-4)
+        z2, x2, _ = (np.asarray(a) for a in fit(z, x0, sigma))
+        resid2 = np.asarray(sim(jnp.asarray(z2), jnp.asarray(x2)))[:, :2] - problem.y[: problem.n_train]
+        if np.all(np.isfinite(resid2)):
+            z, x0, resid = z2, x2, resid2
         sigma = np.maximum(np.sqrt(np.mean(resid**2, axis=0)), 1e-4)
         lag1 = np.sum(resid[1:] * resid[:-1], axis=0) / np.sum(resid**2, axis=0)
         tau = -problem.dt / np.log(np.clip(lag1, 0.01, 0.9999))
@@ -230,8 +245,16 @@ def required_substeps(problem: Problem, params: dict) -> int:
 
 
 def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
-                  map_maxiter: int = 0, log=None) -> Start:  # fmt: skip
+                  map_maxiter: int = 0, guesses=(), newton_steps: int = NEWTON_STEPS,
+                  polish_best: int | None = None, log=None) -> Start:  # fmt: skip
     """Multi-start MAP, substeps check and Laplace covariance (module docstring).
+
+    ``guesses``: parameter dicts tried first (see :func:`map_starts`); ``n_starts`` counts
+    them (with ``n_starts <= len(guesses)`` only the first ``n_starts`` guesses are tried,
+    e.g. to refit a model from a nearby one).
+    ``newton_steps``, ``polish_best``: see :func:`~heli_uq.inference.map.find_map` (fewer
+    steps and one polished start trade MAP accuracy, ~0.01 nats, for speed, e.g. when many
+    candidate models are compared).
 
     ``map_maxiter``: L-BFGS steps per start before the Newton polish.  The default 0 goes
     straight from the least-squares fits to Newton, which reaches the same optimum (to
@@ -246,8 +269,8 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
     """
     t0 = time.perf_counter()
     density = log_density_setup(problem, seed=seed)
-    result = find_map(density, map_starts(problem, density, n_starts, seed, log=log),
-                      maxiter=map_maxiter)  # fmt: skip
+    result = find_map(density, map_starts(problem, density, max(n_starts, 1), seed, guesses, log=log),
+                      maxiter=map_maxiter, newton_steps=newton_steps, polish_best=polish_best)
     if not np.isfinite(result.value):
         raise ParameterError(
             "no MAP start gave a finite log density: the model diverges from every start "
@@ -268,7 +291,7 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
             break
         problem = problem.with_substeps(need)
         density = log_density_setup(problem, seed=seed)
-        x_map, value, grad_max, decrement, _ = newton_polish(density, x_map)
+        x_map, value, grad_max, decrement, _ = newton_polish(density, x_map, max(newton_steps, 1))
     _, cov = laplace(density, x_map)
     return Start(problem, density, np.asarray(x_map), float(value), cov, time.perf_counter() - t0,
                  float(grad_max), float(decrement))  # fmt: skip

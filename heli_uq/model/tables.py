@@ -9,15 +9,17 @@ in kg m^2, gains in N m/V, damping in N m s/rad.  The state order everywhere is
 
 from __future__ import annotations
 
+import json
 import math
 import os
+import pathlib
 
 from heli_uq.errors import ParameterError
 from heli_uq.model.terms.linear_torque import LINEAR_TORQUE_PARAMETERS
 from heli_uq.model.terms.rigid_body import MECHANICS_PARAMETERS
 
-__all__ = ["TABLE1", "TABLE2", "TABLE3_X0", "STATE_NAMES", "X0_NAMES", "load_params_json",
-           "parse_x0"]  # fmt: skip
+__all__ = ["TABLE1", "TABLE2", "TABLE3_X0", "RIG_FIT", "RIG_FIT_X0", "STATE_NAMES", "X0_NAMES",
+           "load_params_json", "parse_x0"]  # fmt: skip
 
 _BASE = MECHANICS_PARAMETERS + LINEAR_TORQUE_PARAMETERS
 #: Paper Table 2 (nominal values).
@@ -29,6 +31,13 @@ STATE_NAMES: tuple[str, ...] = ("theta", "psi", "omega_theta", "omega_psi")
 #: Names of the initial-state entries in results: ``theta0, psi0, omega_theta0, omega_psi0``.
 X0_NAMES: tuple[str, ...] = tuple(f"{s}0" for s in STATE_NAMES)
 #: Paper Table 3: theta=pi/4 rad, psi=0, omega_theta=-0.1 rad/s, omega_psi=0.1 rad/s.
+#: The paper's model fitted to the rig record (MAP, iid errors, training window 0-91 s;
+#: the common inertia scale at its prior): base parameters of rig-like synthetic records
+#: (``rig_fit.json`` beside this module: parameters [SI] and initial state).
+_RIG = json.loads((pathlib.Path(__file__).with_name("rig_fit.json")).read_text(encoding="utf-8"))
+RIG_FIT: dict[str, float] = dict(_RIG["parameters"])
+#: Initial state of that fit ``(theta, psi, omega_theta, omega_psi)`` [rad, rad/s].
+RIG_FIT_X0: tuple[float, float, float, float] = tuple(_RIG["x0"])
 TABLE3_X0: tuple[float, float, float, float] = (math.pi / 4, 0.0, -0.1, 0.1)
 
 

@@ -113,17 +113,18 @@ def simulate_draws(problem, samples: dict, flat_index: np.ndarray, *, seed: int 
 
     batched = jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0 if problem.error == "ar1" else None, 0)))
     keys = jax.random.split(jax.random.PRNGKey(seed), flat_index.size)
+    size = min(SIM_BATCH, flat_index.size)  # one compiled batch shape
     out_ll, out_sim, out_pred = [], [], []
-    for i in range(0, flat_index.size, SIM_BATCH):
-        idx = flat_index[i : i + SIM_BATCH]
-        pad = SIM_BATCH - idx.size  # one compiled batch shape
+    for i in range(0, flat_index.size, size):
+        idx = flat_index[i : i + size]
+        pad = size - idx.size
         full = np.concatenate([idx, np.repeat(idx[-1:], pad)]) if pad else idx
         params, x0, sigma, rho = _draw_inputs(problem, samples, full)
         ll, sim, pred = batched({k: jnp.asarray(v) for k, v in params.items()}, jnp.asarray(x0),
                                 jnp.asarray(sigma), None if rho is None else jnp.asarray(rho),
-                                keys[i : i + SIM_BATCH] if not pad else
+                                keys[i : i + size] if not pad else
                                 jnp.concatenate([keys[i:], jnp.repeat(keys[-1:], pad, 0)]))  # fmt: skip
-        keep = SIM_BATCH - pad
+        keep = size - pad
         if want_ll:
             out_ll.append(np.asarray(ll)[:keep])
         if want_pred:

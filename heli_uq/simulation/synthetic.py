@@ -15,7 +15,7 @@ from heli_uq.errors import DataFormatError, ParameterError
 from heli_uq.model.tables import TABLE1
 
 __all__ = ["SYNTHETIC_PARAMS", "SYNTHETIC_X0", "STEP_RANGES", "STEP_HOLD", "step_inputs",
-           "synthetic_experiment"]  # fmt: skip
+           "synthetic_experiment", "RIG_RANGES", "RIG_HOLD", "ENCODER_QUANTUM"]  # fmt: skip
 
 #: Default parameters of :func:`synthetic_experiment` (fitted-looking values, paper Table 1).
 SYNTHETIC_PARAMS: Mapping[str, float] = dict(TABLE1)
@@ -29,6 +29,11 @@ SYNTHETIC_X0 = (-0.5, 0.0, 0.0, 0.0)
 STEP_RANGES = ((1.0, 1.45), (0.4, 1.3))
 #: Range [s] of the hold time of one step of the ``"steps"`` profile.
 STEP_HOLD = (0.5, 3.0)
+#: The rig record's voltage ranges [V] ``((u_theta), (u_psi))`` and segment lengths [s].
+RIG_RANGES = ((1.22, 1.47), (0.45, 1.6))
+RIG_HOLD = (3.0, 14.0)
+#: Angle resolution [rad] of a 4096-count encoder, for quantised synthetic records.
+ENCODER_QUANTUM = 2 * np.pi / 4096
 
 
 def step_inputs(n: int, dt: float, rng: np.random.Generator, ranges=STEP_RANGES,
@@ -57,6 +62,7 @@ def synthetic_experiment(
     simulator: Callable | None = None,
     model=None,
     substeps: int | None = None,
+    quantum: float | None = None,
 ) -> Experiment:
     """A seeded synthetic record: simulate the model and add Gaussian measurement noise.
 
@@ -71,9 +77,11 @@ def synthetic_experiment(
         Length [s]; N = round(duration/dt).  Ignored when *inputs* is an array.
     dt : float
         Sample time [s].
-    inputs : {"steps"} or array_like, shape (N, 2)
+    inputs : {"steps", "rig_steps"} or array_like, shape (N, 2)
         ``"steps"``: random voltages in :data:`STEP_RANGES` held for random
-        0.5-3 s segments.  An array: voltages ``[u_theta, u_psi]`` [V], zero-order held.
+        0.5-3 s segments; ``"rig_steps"``: in the rig record's ranges :data:`RIG_RANGES`,
+        held 3-14 s (:data:`RIG_HOLD`).  An array: voltages ``[u_theta, u_psi]`` [V],
+        zero-order held.
     noise_std : pair of float
         Standard deviations [rad] of the iid Gaussian noise on theta and psi.
     seed : int
@@ -87,6 +95,9 @@ def synthetic_experiment(
     substeps : int, optional
         RK4 substeps of the default simulator (default: :func:`default_substeps` at
         ``params``, doubled for margin).
+    quantum : float, optional
+        Round the noisy angles to multiples of ``quantum`` [rad] (an encoder, e.g.
+        :data:`ENCODER_QUANTUM`).
 
     Returns
     -------
@@ -112,12 +123,13 @@ def synthetic_experiment(
     rng = np.random.default_rng(seed)
 
     if isinstance(inputs, str):
-        if inputs != "steps":
-            raise ParameterError(f"inputs {inputs!r}: expected 'steps' or an (N, 2) array")
+        if inputs not in ("steps", "rig_steps"):
+            raise ParameterError(f"inputs {inputs!r}: expected 'steps', 'rig_steps' or an (N, 2) "
+                                 "array")  # fmt: skip
         n = round(duration / dt) if np.isfinite(duration) else 0
         if n < 2:
             raise ParameterError(f"duration {duration!r}: expected at least 2 samples of {dt} s")
-        u = step_inputs(n, dt, rng)
+        u = step_inputs(n, dt, rng) if inputs == "steps" else step_inputs(n, dt, rng, RIG_RANGES, RIG_HOLD)
     else:
         u = np.array(inputs, dtype=float)
         if u.ndim != 2 or u.shape[0] < 2 or u.shape[1] != 2 or not np.all(np.isfinite(u)):
@@ -132,6 +144,8 @@ def synthetic_experiment(
         raise DataFormatError(f"simulation (seed={seed}): non-finite states, e.g. at "
                               f"t = {np.argmax(~np.all(np.isfinite(states), axis=1)) * dt} s")
     y = states[:, :2] + rng.normal(size=(n, 2)) * noise_std
+    if quantum is not None:
+        y = np.round(y / quantum) * quantum
     return Experiment(np.arange(n) * dt, u, y, dt, f"synthetic(seed={seed})")
 
 

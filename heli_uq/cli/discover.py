@@ -1,0 +1,84 @@
+"""``heli-uq discover``: where a model and a record disagree, the missing named effect, and the
+refitted model (:func:`heli_uq.discovery.discover`)."""
+
+from __future__ import annotations
+
+import json
+
+from heli_uq.cli.options import EFFECTS_HELP, Formatter, out_dir
+from heli_uq.errors import ParameterError
+
+__all__ = ["add_parser", "cmd_discover"]
+
+
+def cmd_discover(args) -> int:
+    import numpyro
+
+    from heli_uq.data import load_data, parse_window
+    from heli_uq.discovery import BUDGETS, discover
+
+    if args.max_effects < 1:
+        raise ParameterError(f"--max-effects: expected an integer >= 1, found {args.max_effects}")
+    numpyro.set_host_device_count(BUDGETS[args.budget].chains)
+    record = load_data(args.data)
+    window = parse_window(args.window) if args.window else None
+    train = parse_window(args.train) if args.train else None
+    test = parse_window(args.test) if args.test else None
+    if (train is None) != (test is None):
+        raise ParameterError("--train and --test go together (fit on one, score on the other)")
+    if window is not None and train is not None:
+        raise ParameterError("--window cannot be combined with --train/--test")
+    base = [s.strip() for s in (args.base_effects or "").split(",") if s.strip()]
+    out = out_dir(args.out)
+    result = discover(record, out, window=window, train=train, test=test, base_effects=base,
+                      budget=args.budget, max_effects=args.max_effects, seed=args.seed,
+                      scheduler=args.scheduler, log=lambda m: print(m, flush=True))  # fmt: skip
+    print(json.dumps({k: result[k] for k in ("effect", "axis", "parameters")}))
+    print(f"wrote {out / 'discovery.json'}, report.md, bands_before.png, bands_after.png, "
+          "residuals.png, candidates.png")  # fmt: skip
+    return 0
+
+
+def add_parser(subparsers):
+    p = subparsers.add_parser(
+        "discover",
+        help="find the missing physical effect, add it, refit, and show the gap shrink",
+        description=(
+            "Fit the base model, locate where the data leave its predictive band, regress the\n"
+            "torque the data imply on the effects vocabulary (pysindy), fit every candidate\n"
+            "effect (and pairs of the best) on the fitting window, rank them by held-out\n"
+            "log predictive density in input-segment blocks, add the winner if it beats the\n"
+            "calibrated margin (else 'none'), refit with NUTS and compare before/after.\n\n"
+            "Writes DIR/discovery.json, DIR/report.md, DIR/bands_before.png,\n"
+            "DIR/bands_after.png, DIR/residuals.png, DIR/candidates.png, DIR/candidates/\n"
+            "(each fit; a rerun with the same DIR reuses them) and DIR/refit/ (posterior)."
+        ),
+        epilog=(
+            "budgets: quick (2 MAP starts per candidate, NUTS 2 x (250 + 250)); full (4 starts,\n"
+            "  NUTS 4 x (1000 + 1000), NUTS also for the base model)\n\n"
+            "examples:\n"
+            "  heli-uq discover experimental --train 0:91 --test 91:131 --max-effects 2 --out out/disc\n"
+            "  heli-uq discover rec.csv --budget full --scheduler tcp://host:8786 --out out/rec\n\n"
+            + EFFECTS_HELP
+        ),
+        formatter_class=Formatter,
+    )  # fmt: skip
+    p.add_argument("data", metavar="DATA", help="experimental, or a CSV in the published format")
+    p.add_argument("--window", metavar="A:B", default=None,
+                   help="use A <= t < B [s]; candidates are fitted on its first 70 %% and scored "
+                        "on the rest (default: the whole record)")  # fmt: skip
+    p.add_argument("--train", metavar="A:B", default=None, help="fitting window [s]")
+    p.add_argument("--test", metavar="C:D", default=None, help="held-out scoring window [s]")
+    p.add_argument("--base-effects", metavar="AXIS:EFFECT,...", default=None,
+                   help="effects already in the base model (default: none)")
+    p.add_argument("--budget", choices=["quick", "full"], default="quick",
+                   help="effort (default: quick)")
+    p.add_argument("--max-effects", type=int, default=1,
+                   help="most effects to add, greedily, pairs considered (default: 1)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    p.add_argument("--scheduler", default="local", metavar="local|serial|ADDRESS",
+                   help="candidate fits on a Dask LocalCluster (default), in this process "
+                        "(serial), or on the Dask scheduler at ADDRESS")  # fmt: skip
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.set_defaults(handler=cmd_discover)
+    return p

@@ -1,0 +1,18 @@
+"""Discovery: where a model and a record disagree, which named effect is missing, and the
+refitted model that closes the gap (``heli-uq discover``).
+
+Layer 8 (imports everything below it; only the CLI imports it).  One module per step:
+``locate`` (where the base model fails), ``implied`` (the torque the data imply and each
+effect's feature), ``sindy`` (pysindy ranking), ``candidates`` (one model fitted and
+scored, the Dask task), ``score`` (blocked held-out scores and gap metrics), ``workflow``
+(the steps and the decision), ``report`` (refit and outputs).
+"""
+
+from heli_uq.discovery.report import DISCOVERY_KEYS as DISCOVERY_KEYS
+from heli_uq.discovery.score import MARGIN_PER_SAMPLE as MARGIN_PER_SAMPLE
+from heli_uq.discovery.score import MARGIN_SE as MARGIN_SE
+from heli_uq.discovery.workflow import BUDGETS as BUDGETS
+from heli_uq.discovery.workflow import Budget as Budget
+from heli_uq.discovery.workflow import discover as discover
+
+__all__ = ["discover", "Budget", "BUDGETS", "MARGIN_SE", "MARGIN_PER_SAMPLE", "DISCOVERY_KEYS"]

@@ -1,0 +1,122 @@
+"""One model fitted and scored: the task the discovery runs per candidate (on Dask workers).
+
+:func:`fit_and_score` fits a model (the base plus effects) on the fitting window: a
+multi-start MAP (:func:`heli_uq.inference.prepare_start`) started first from the warm
+guesses (the current model's MAP with each new effect parameter at its implied value from
+the sparse regression, and at its probe value), with iid errors.  It then draws the
+Laplace approximation at the MAP, simulates every draw once over fitting and held-out
+window, and returns the gap metrics of both windows and the held-out block scores
+(:mod:`heli_uq.discovery.score`).  The result is a JSON-able dict, so it can be stored
+and reused when a run is repeated with the same ``--out``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from heli_uq.data import Experiment
+from heli_uq.discovery.score import MIN_BLOCKS, block_scores, gap_metrics, input_blocks
+from heli_uq.inference import prepare_start
+from heli_uq.inference.density import constrain_draws
+from heli_uq.model import X0_NAMES, build_model
+from heli_uq.output.inference_data import simulate_draws
+from heli_uq.probability import make_problem
+
+__all__ = ["FitTask", "fit_and_score", "score_fitted", "Fitted", "fitted_predictive"]
+
+
+@dataclasses.dataclass(frozen=True)
+class FitTask:
+    """What one candidate fit needs (picklable; sent to a worker).
+
+    Attributes
+    ----------
+    record : Experiment
+    fit_window, score_window : (float, float)
+        Windows [s]: the MAP uses ``fit_window``; ``score_window`` is held out.
+    effects : tuple of str
+        The model's effects, ``"axis:kind"`` (base effects first).
+    guesses : tuple of dict
+        Warm starts (physical parameter values).
+    seed : int
+    n_starts : int
+        MAP starts (warm guesses included).
+    draws : int
+        Laplace draws simulated for the predictive.
+    newton_steps : int
+        Newton steps of the MAP polish (of the best start only).
+    """
+
+    record: Experiment
+    fit_window: tuple[float, float]
+    score_window: tuple[float, float] | None
+    effects: tuple[str, ...]
+    guesses: tuple[dict, ...] = ()
+    seed: int = 0
+    n_starts: int = 3
+    draws: int = 100
+    newton_steps: int = 6
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Fitted:
+    """A fitted model with its Laplace predictive over fitting and held-out window."""
+
+    start: object
+    params: dict
+    y_sim: np.ndarray
+    y_pred: np.ndarray
+    sigma: np.ndarray
+    seconds: float
+
+
+def fitted_predictive(task: FitTask) -> Fitted:
+    """MAP, Laplace draws and their simulations of ``task`` (module docstring)."""
+    t0 = time.perf_counter()
+    model = build_model(list(task.effects))
+    problem = make_problem(task.record, task.fit_window, task.score_window, model=model, error="iid")
+    start = prepare_start(problem, n_starts=task.n_starts, seed=task.seed, guesses=task.guesses,
+                          newton_steps=task.newton_steps, polish_best=1)
+    best = {k: np.asarray(v[0]) for k, v in constrain_draws(start.density, start.x_map[None]).items()}
+    params = {n: float(best[n]) if n in best else float(p.a) for n, p in start.problem.priors.params.items()}
+    params.update({n: float(best[n]) for n in X0_NAMES})
+    sites = start.laplace_draws(task.draws, seed=task.seed)
+    _, y_sim, y_pred = simulate_draws(start.problem, {k: np.asarray(v)[None] for k, v in sites.items()},
+                                      np.arange(task.draws), seed=task.seed, want_ll=False)  # fmt: skip
+    return Fitted(start, params, y_sim, y_pred, np.asarray(sites["sigma"]), time.perf_counter() - t0)
+
+
+def fit_and_score(task: FitTask) -> dict:
+    """Fit ``task``'s model and score it on the held-out window (module docstring); the
+    task function of the candidate fits.  See :func:`score_fitted` for the result."""
+    return score_fitted(fitted_predictive(task), task)
+
+
+def score_fitted(fitted: Fitted, task: FitTask) -> dict:
+    """The JSON-able record of a fitted model.
+
+    Returns
+    -------
+    dict
+        ``effects``, ``map`` (physical parameters and initial state), ``map_value``,
+        ``map_decrement``, ``substeps``, ``fit`` and ``score`` gap metrics (fitting and
+        held-out window), ``block_scores`` [nats] on the held-out window, ``seconds``.
+    """
+    t0 = time.perf_counter()
+    problem = fitted.start.problem
+    windows = problem.windows()
+    a, b = windows["train"]
+    out = {"effects": list(task.effects), "map": fitted.params,
+           "map_value": fitted.start.map_value, "map_decrement": fitted.start.map_decrement,
+           "substeps": problem.substeps,
+           "fit": gap_metrics(fitted.y_sim[:, a:b], fitted.y_pred[:, a:b], problem.y[a:b])}  # fmt: skip
+    c, d = windows["test"]
+    out["score"] = gap_metrics(fitted.y_sim[:, c:d], fitted.y_pred[:, c:d], problem.y[c:d])
+    blocks = input_blocks(problem.u[c:d], problem.dt, min_blocks=MIN_BLOCKS)
+    out["block_scores"] = block_scores(fitted.y_sim[:, c:d], fitted.sigma, problem.y[c:d],
+                                       blocks).tolist()  # fmt: skip
+    out["seconds"] = fitted.seconds + time.perf_counter() - t0
+    return out

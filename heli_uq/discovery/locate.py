@@ -1,0 +1,143 @@
+"""Where the base model fails: by axis, by input segment, and by state.
+
+From the base model's Laplace predictive over the fitting and held-out windows:
+
+* per axis, RMSE and the share of samples outside the 90 % band on each window; the
+  *worst axis* is the one with the larger held-out RMSE relative to its fitted error scale;
+* per input segment (runs of constant voltages), the share outside the band;
+* per candidate feature (the voltages, the rates, whether the axis is still, the angles),
+  the share outside the band in quantile bins: structure against a feature points at the
+  effects that act through it (e.g. misses concentrated where yaw is still point at
+  friction, misses that follow ``u_psi`` at a gain or dead band).
+
+Writes ``residuals.png`` (time, segments, features) and returns a JSON-able dict.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from heli_uq.discovery.score import input_blocks
+from heli_uq.figure import new_figure, save_figure
+
+__all__ = ["locate", "STILL_RATE", "N_BINS"]
+
+#: An axis counts as still below this rate [rad/s] (smoothed measured angle).
+STILL_RATE = 0.02
+#: Quantile bins per feature.
+N_BINS = 6
+_SMOOTH_S = 0.5
+_AXES = ("theta", "psi")
+
+
+def _features(y, u, dt) -> dict:
+    n = max(5, int(round(_SMOOTH_S / dt)) | 1)
+    v = savgol_filter(y, min(n, (len(y) - 2) | 1), 3, deriv=1, delta=dt, axis=0)
+    return {"u_theta [V]": u[:, 0], "u_psi [V]": u[:, 1], "omega_theta [rad/s]": v[:, 0],
+            "omega_psi [rad/s]": v[:, 1], "theta [rad]": y[:, 0], "psi [rad]": y[:, 1],
+            "psi still (|omega_psi| < 0.02)": (np.abs(v[:, 1]) < STILL_RATE).astype(float)}  # fmt: skip
+
+
+def _binned(feature, outside) -> list[dict]:
+    values = np.unique(feature)
+    if values.size <= 2:
+        edges = [(v, v) for v in values]
+    else:
+        q = np.unique(np.quantile(feature, np.linspace(0, 1, N_BINS + 1)))
+        edges = list(zip(q[:-1], q[1:]))
+    out = []
+    for i, (lo, hi) in enumerate(edges):
+        m = (feature >= lo) & ((feature <= hi) if i == len(edges) - 1 else (feature < hi))
+        if lo == hi:
+            m = feature == lo
+        if m.any():
+            out.append({"low": float(lo), "high": float(hi), "n": int(m.sum()),
+                        "outside90": float(outside[m].mean())})  # fmt: skip
+    return out
+
+
+def locate(fitted, out_dir=None) -> dict:
+    """Where the base model's 90 % band misses the data (module docstring).
+
+    Parameters
+    ----------
+    fitted : heli_uq.discovery.candidates.Fitted
+        The base model's fit with its predictive over fitting + held-out window.
+    out_dir : path, optional
+        Where ``residuals.png`` is written.
+    """
+    problem = fitted.start.problem
+    y, u, t, dt = problem.y, problem.u, problem.t, problem.dt
+    lo, hi = np.nanquantile(fitted.y_pred, [0.05, 0.95], axis=0)
+    mean = np.nanmean(fitted.y_sim, axis=0)
+    outside = (y < lo) | (y > hi)
+    resid = y - mean
+    windows = problem.windows()
+    sigma = np.median(fitted.sigma, axis=0)
+    per_window = {}
+    for w, (a, b) in windows.items():
+        per_window[w] = {f"{k}_{ax}": float(v) for ax, j in zip(_AXES, (0, 1))
+                         for k, v in (("rmse", np.sqrt(np.mean(resid[a:b, j] ** 2))),
+                                      ("outside90", outside[a:b, j].mean()))}  # fmt: skip
+    c, d = windows["test"]
+    ratio = np.sqrt(np.mean(resid[c:d] ** 2, axis=0)) / sigma
+    axis = "pitch" if ratio[0] > ratio[1] else "yaw"
+    segments = [{"t0": float(t[a]), "t1": float(t[b - 1] + dt), "u_theta": float(u[a, 0]),
+                 "u_psi": float(u[a, 1]),
+                 **{f"outside90_{ax}": float(outside[a:b, j].mean()) for j, ax in enumerate(_AXES)}}
+                for a, b in input_blocks(u, dt, min_block_s=0.0)]  # fmt: skip
+    feats = _features(y, u, dt)
+    j = 0 if axis == "pitch" else 1
+    by_feature = {name: _binned(f, outside[:, j]) for name, f in feats.items()}
+    spread = {name: max(b["outside90"] for b in bins) - min(b["outside90"] for b in bins)
+              for name, bins in by_feature.items() if bins}  # fmt: skip
+    result = {"axis": axis, "error_ratio": {"theta": float(ratio[0]), "psi": float(ratio[1])},
+              "windows": per_window, "segments": segments, "by_feature": by_feature,
+              "strongest_features": sorted(spread, key=lambda k: -spread[k])[:3]}  # fmt: skip
+    if out_dir is not None:
+        fig = _figure(t, resid, outside, segments, by_feature, axis, windows)
+        save_figure(fig, f"{out_dir}/residuals.png")
+    return result
+
+
+def _figure(t, resid, outside, segments, by_feature, axis, windows):
+    fig = new_figure((12.0, 10.0))
+    grid = fig.add_gridspec(3, 4, height_ratios=[1.2, 1.0, 1.1])
+    ax_t = fig.add_subplot(grid[0, :])
+    c, d = windows["test"]
+    for j, (name, color) in enumerate(zip(("pitch residual", "yaw residual"), ("C0", "C1"))):
+        ax_t.plot(t, np.degrees(resid[:, j]), color=color, lw=0.7, label=name)
+        ax_t.plot(t[outside[:, j]], np.degrees(resid[outside[:, j], j]), ".", ms=1.5, color=color,
+                  alpha=0.6)  # fmt: skip
+    ax_t.axvspan(t[c], t[d - 1], color="0.85", zorder=0, label="held out")
+    ax_t.set_ylabel("measured - mean simulation [deg]")
+    ax_t.set_xlabel("time $t$ [s]")
+    ax_t.set_title("Residuals of the base model (dots: outside the 90 % band)", loc="left")
+    ax_t.legend(loc="upper left", fontsize="small")
+    ax_s = fig.add_subplot(grid[1, :])
+    mids = [0.5 * (s["t0"] + s["t1"]) for s in segments]
+    widths = [s["t1"] - s["t0"] for s in segments]
+    for j, (ax_name, color, off) in enumerate((("theta", "C0", -0.25), ("psi", "C1", 0.25))):
+        ax_s.bar(np.asarray(mids) + off * np.asarray(widths) * 0.5,
+                 [100 * s[f"outside90_{ax_name}"] for s in segments], width=np.asarray(widths) * 0.45,
+                 color=color, label=f"{'pitch' if j == 0 else 'yaw'}")  # fmt: skip
+    ax_s.axhline(10, color="k", lw=0.8, ls="--", label="10 % (a calibrated band)")
+    ax_s.set_ylabel("outside 90 % band [%]")
+    ax_s.set_xlabel("input segment (time [s])")
+    ax_s.set_title("Misses by input segment", loc="left")
+    ax_s.legend(loc="upper left", fontsize="small")
+    own = ("u_psi [V]", "omega_psi [rad/s]", "psi [rad]", "u_theta [V]") if axis == "yaw" else \
+        ("u_theta [V]", "omega_theta [rad/s]", "theta [rad]", "u_psi [V]")
+    for k, name in enumerate(own):
+        bins = by_feature[name]
+        ax = fig.add_subplot(grid[2, k])
+        x = [0.5 * (b["low"] + b["high"]) for b in bins]
+        ax.plot(x, [100 * b["outside90"] for b in bins], "o-", color="C1" if axis == "yaw" else "C0")
+        ax.axhline(10, color="k", lw=0.8, ls="--")
+        ax.set_xlabel(name)
+        ax.set_ylabel(f"{axis} outside 90 % [%]" if k == 0 else "")
+        ax.grid(True, alpha=0.4)
+    fig.suptitle(f"Where the base model fails (worst axis: {axis})")
+    fig.tight_layout()
+    return fig

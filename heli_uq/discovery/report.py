@@ -1,0 +1,278 @@
+"""The refit of the chosen model and the outputs of a discovery run.
+
+* ``discovery.json``: exactly the keys ``effect, axis, parameters, gap_before, gap_after,
+  candidates, decision, added``.  The gap records hold ``rmse_theta, rmse_psi`` [rad],
+  ``V`` [rad^2] and ``coverage90_theta, coverage90_psi`` per window: ``{"train": ...,
+  "test": ...}`` when a split was given, else ``{"window": ...}``.  *After* is the NUTS
+  posterior of the chosen model; *before* the base model's NUTS posterior (``full``) or
+  its Laplace approximation at the MAP (``quick``).
+* ``report.md``; ``bands_before.png``, ``bands_after.png``, ``residuals.png``,
+  ``candidates.png``; ``refit/`` (``posterior.nc``, ``summary.json`` of the refit).
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import time
+
+import numpy as np
+
+from heli_uq.discovery.candidates import FitTask, fitted_predictive
+from heli_uq.discovery.score import GAP_KEYS, MARGIN_PER_SAMPLE, gap_metrics
+from heli_uq.figure import new_figure, save_figure
+from heli_uq.io import atomic_write_text
+from heli_uq.model import build_model
+from heli_uq.output import parameter_summary, plot_bands, sample_posterior
+
+__all__ = ["write_outputs", "DISCOVERY_KEYS"]
+
+#: The keys of ``discovery.json``, in order.
+DISCOVERY_KEYS = ("effect", "axis", "parameters", "gap_before", "gap_after", "candidates",
+                  "decision", "added")  # fmt: skip
+
+
+def _gap(y_sim, y_pred, y_obs, masks: dict) -> dict:
+    return {w: gap_metrics(y_sim[:, m], y_pred[:, m], y_obs[m]) for w, m in masks.items()}
+
+
+def _masks(n: int, windows: dict, split: bool) -> dict:
+    out = {}
+    for w, (a, b) in windows.items():
+        m = np.zeros(n, bool)
+        m[a:b] = True
+        out[w if split else "window"] = m
+    return out
+
+
+def _posterior(record, model, train, test, out, cost, seed):
+    """NUTS posterior of ``model``: ``(gap masks input, idata, summary)``."""
+    idata, summary = sample_posterior(record, out, model=model, train=train, test=test, sampler="nuts",
+                                      error="iid", chains=cost.chains, warmup=cost.warmup,
+                                      draws=cost.samples, seed=seed, progress=False)  # fmt: skip
+    pp = idata.posterior_predictive
+    y_sim = np.asarray(pp["y_sim"]).reshape((-1,) + pp["y_sim"].shape[2:])
+    y_pred = np.asarray(pp["y_pred"]).reshape((-1,) + pp["y_pred"].shape[2:])
+    cd = idata.constant_data
+    return idata, summary, y_sim, y_pred, np.asarray(cd["y_obs"]), np.asarray(cd["time"])
+
+
+def _candidate_rows(rows: list[dict]) -> list[dict]:
+    out = []
+    for r in rows:
+        kinds = [e.split(":")[1] for e in r["added"]]
+        axes = sorted({e.split(":")[0] for e in r["added"]})
+        row = {"effect": "+".join(kinds), "axis": "+".join(axes), "score": r["score"],
+               "score_se": r["score_se"], "step": r["step"], "model": r["effect"]}  # fmt: skip
+        for k in ("score_per_sample", "passes", "held_out", "fit", "seconds", "error"):
+            if k in r:
+                row[k] = r[k]
+        out.append(row)
+    return out
+
+
+def _effect_parameters(summary_params: dict, effect: str) -> dict:
+    axis, kind = effect.split(":")
+    return {p["bare"]: {"mean": p["mean"], "ci95": p["ci95"], "unit": p["unit"]}
+            for name, p in summary_params.items() if name.endswith(f"_{axis}") and p.get("bare")
+            and _owner(name, kind, axis)}  # fmt: skip
+
+
+def _owner(name: str, kind: str, axis: str) -> bool:
+    from heli_uq.model import EFFECTS
+
+    return any(f"{p.name}_{axis}" == name for p in EFFECTS[kind](axis=axis)._declare())
+
+
+def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_fit, where, ranking,
+                  rows, steps, cost, budget, seed, full, refit, fit_window, score_window, n_scored, say,
+                  t_start) -> dict:  # fmt: skip
+    """Refit, compare and write every output (module docstring); returns ``discovery.json``."""
+    train, test = refit
+    split = test is not None
+    base_model = build_model(base_effects)
+    # before
+    if full:
+        say("NUTS posterior of the base model (before)")
+        _, _, bs, bp, by, bt = _posterior(record, base_model, train, test, out / "before", cost, seed)
+        problem_windows = _windows_from(bt, train, test)
+    else:
+        fitted = base_fit if split else fitted_predictive(
+            FitTask(record, train, None, tuple(base_effects), (base_fit.params,), seed, 1, cost.draws,
+                    cost.newton_steps))  # fmt: skip
+        bs, bp, by, bt = fitted.y_sim, fitted.y_pred, fitted.start.problem.y, fitted.start.problem.t
+        problem_windows = fitted.start.problem.windows()
+    before_masks = _masks(len(bt), problem_windows, split)
+    gap_before = _gap(bs, bp, by, before_masks)
+    # after
+    effects = list(base_effects) + list(added)
+    if added:
+        say(f"NUTS posterior of the chosen model ({build_model(effects).label})")
+        idata, summary, as_, ap, ay, at = _posterior(record, build_model(effects), train, test,
+                                                     out / "refit", cost, seed)  # fmt: skip
+        gap_after = _gap(as_, ap, ay, _masks(len(at), _windows_from(at, train, test), split))
+        params = parameter_summary(idata, idata_model(idata))
+        converged = summary.get("converged")
+    else:
+        as_, ap, ay, at, gap_after, params, converged = bs, bp, by, bt, gap_before, {}, None
+    first = added[0] if added else None
+    result = {
+        "effect": first.split(":")[1] if first else "none",
+        "axis": first.split(":")[0] if first else None,
+        "parameters": _effect_parameters(params, first) if first else {},
+        "gap_before": gap_before, "gap_after": gap_after,
+        "candidates": _candidate_rows(rows),
+        "decision": _decision(added, rows, steps, gap_before, gap_after),
+        "added": [{"effect": e.split(":")[1], "axis": e.split(":")[0],
+                   "parameters": _effect_parameters(params, e)} for e in added],
+    }  # fmt: skip
+    assert tuple(result) == DISCOVERY_KEYS
+    atomic_write_text(out / "discovery.json", json.dumps(result, indent=1))
+    masks_before = before_masks
+    title = f"{pathlib.Path(str(record.source)).name}"
+    save_figure(plot_bands(bt, bp, by, **_plot_masks(masks_before, split),
+                           coverage=_coverage(gap_before),
+                           title=f"Before: {base_model.label} ({'NUTS' if full else 'Laplace'})"
+                                 f" - {title}"), out / "bands_before.png")  # fmt: skip
+    masks_after = _masks(len(at), _windows_from(at, train, test), split) if added else masks_before
+    save_figure(plot_bands(at, ap, ay, **_plot_masks(masks_after, split), coverage=_coverage(gap_after),
+                           title=f"After: {build_model(effects).label} (NUTS) - {title}"),
+                out / "bands_after.png")  # fmt: skip
+    save_figure(_candidates_figure(result["candidates"], n_scored), out / "candidates.png")
+    label = budget if isinstance(budget, str) else "custom"
+    whole = {"before": gap_metrics(bs, bp, by), "after": gap_metrics(as_, ap, ay)}
+    atomic_write_text(out / "report.md", _report(result, where, ranking, steps, base, label, fit_window,
+                                                 score_window, n_scored, converged, whole,
+                                                 time.perf_counter() - t_start, record))  # fmt: skip
+    say(f"done: {result['decision']}")
+    return result
+
+
+def idata_model(idata):
+    from heli_uq.model import model_from_description
+
+    return model_from_description(idata.posterior.attrs["model"])
+
+
+def _windows_from(t, train, test) -> dict:
+    t = np.asarray(t)
+    out = {"train": (0, int(np.searchsorted(t, train[1] - 1e-9)))}
+    if test is not None:
+        out["test"] = (int(np.searchsorted(t, test[0] - 1e-9)), len(t))
+    return out
+
+
+def _plot_masks(masks: dict, split: bool) -> dict:
+    if split:
+        return {"train_mask": masks["train"], "test_mask": masks["test"]}
+    return {"train_mask": masks["window"], "test_mask": None}
+
+
+def _coverage(gap: dict) -> dict:
+    return {w: {"theta": g["coverage90_theta"], "psi": g["coverage90_psi"]} for w, g in gap.items()}
+
+
+def _decision(added, rows, steps, before, after) -> str:
+    w = "test" if "test" in before else "window"
+    if not added:
+        best = next((r for r in rows if r.get("score") is not None), None)
+        why = (f"; the best, {best['effect']}, scored {best['score']:+.0f} ± {best['score_se']:.0f} "
+               f"nats on held-out blocks") if best else ""  # fmt: skip
+        return f"none: no candidate effect beats the base model by the calibrated margin{why}."
+    names = " and ".join(f"{e.split(':')[1]} on {e.split(':')[0]}" for e in added)
+    return (f"Added {names}: held-out score +{steps[0]['score']:.0f} ± {steps[0]['score_se']:.0f} nats "
+            f"over the base at the first step; yaw RMSE on the {w} window {before[w]['rmse_psi']:.3f} -> "
+            f"{after[w]['rmse_psi']:.3f} rad, yaw 90 % coverage {before[w]['coverage90_psi']:.0%} -> "
+            f"{after[w]['coverage90_psi']:.0%}.")  # fmt: skip
+
+
+def _candidates_figure(cands: list[dict], n_scored: int):
+    ok = [c for c in cands if c.get("score") is not None]
+    fig = new_figure((10.0, 0.9 + 0.32 * max(len(ok), 1)))
+    ax = fig.add_subplot(1, 1, 1)
+    labels = [f"step {c['step']}: {c['effect']} ({c['axis']})" for c in ok][::-1]
+    scores = np.asarray([c["score"] for c in ok][::-1])
+    ses = np.asarray([c["score_se"] for c in ok][::-1])
+    colors = ["C2" if c.get("passes") else "0.6" for c in ok][::-1]
+    y = np.arange(len(ok))
+    ax.barh(y, scores, xerr=2 * ses, color=colors, ecolor="k", capsize=2)
+    ax.set_yticks(y, labels, fontsize="small")
+    ax.axvline(0, color="k", lw=0.8)
+    ax.axvline(MARGIN_PER_SAMPLE * n_scored, color="C3", ls="--", lw=0.8,
+               label=f"margin {MARGIN_PER_SAMPLE} nats/sample")  # fmt: skip
+    ax.set_xscale("symlog", linthresh=max(10.0, MARGIN_PER_SAMPLE * n_scored))
+    ax.set_xlabel("held-out log predictive density minus the current model's [nats] (bars: ± 2 SE)")
+    ax.set_title("Candidate effects (green: passes the margin)", loc="left")
+    ax.legend(loc="lower right", fontsize="small")
+    ax.grid(True, axis="x", alpha=0.4)
+    fig.tight_layout()
+    return fig
+
+
+def _fmt_gap(g: dict) -> str:
+    return " | ".join(f"{g[k]:.3f}" if "rmse" in k or k == "V" else f"{g[k]:.0%}" for k in GAP_KEYS)
+
+
+def _report(result, where, ranking, steps, base, budget, fit_window, score_window, n_scored, converged,
+            whole, seconds, record) -> str:  # fmt: skip
+    lines = [f"# Discovery report: {pathlib.Path(str(record.source)).name}", "",
+             f"**Decision.** {result['decision']}", "",
+             f"Budget `{budget}`, {seconds / 60:.1f} min. Candidates fitted on {fit_window[0]:g}-"
+             f"{fit_window[1]:g} s and scored on {score_window[0]:g}-{score_window[1]:g} s "
+             f"({n_scored} samples in input-segment blocks).", "",
+             "## 1. Where the base model fails", "",
+             f"Worst axis: **{where['axis']}** (held-out RMSE / fitted error scale: pitch "
+             f"{where['error_ratio']['theta']:.1f}, yaw {where['error_ratio']['psi']:.1f}).", "",
+             "| window | RMSE pitch [rad] | outside 90 % pitch | RMSE yaw [rad] | outside 90 % yaw |",
+             "|---|---|---|---|---|"]  # fmt: skip
+    for w, m in where["windows"].items():
+        lines.append(f"| {w} | {m['rmse_theta']:.3f} | {m['outside90_theta']:.0%} | {m['rmse_psi']:.3f} | "
+                     f"{m['outside90_psi']:.0%} |")  # fmt: skip
+    worst = sorted(where["segments"], key=lambda s: -max(s["outside90_theta"], s["outside90_psi"]))[:5]
+    lines += ["", "Input segments with the most misses (share outside the 90 % band):", "",
+              "| t [s] | u_theta [V] | u_psi [V] | pitch | yaw |", "|---|---|---|---|---|"]
+    lines += [f"| {s['t0']:.1f}-{s['t1']:.1f} | {s['u_theta']:.3f} | {s['u_psi']:.3f} | "
+              f"{s['outside90_theta']:.0%} | {s['outside90_psi']:.0%} |" for s in worst]
+    lines += ["", f"Misses of the {where['axis']} band vary most with: "
+              + ", ".join(where["strongest_features"]) + " (`residuals.png`).", "",
+              "## 2. The missing torque (sparse regression, pysindy)", "",
+              "Inclusion probability of each candidate's feature in a bagged STLSQ fit of the "
+              "torque the data imply (a ranking and start values only; the fits decide):", "",
+              "| effect | inclusion | explained | implied parameters |", "|---|---|---|---|"]  # fmt: skip
+    lines += [f"| {r['effect']} | {r['inclusion']:.2f} | {r['explained']:.3f} | "
+              + ", ".join(f"{k} = {v:.3g}" for k, v in r["implied"].items()) + " |" for r in ranking]
+    lines += ["", "## 3. Candidates (held-out score vs the current model)", "",
+              "| step | effect | axis | score [nats] | SE | per sample | passes | held-out yaw RMSE | "
+              "held-out V | fit [s] |", "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for c in result["candidates"]:
+        if c.get("score") is None:
+            lines.append(f"| {c['step']} | {c['effect']} | {c['axis']} | failed: {c.get('error')} |"
+                         " | | | | | |")  # fmt: skip
+            continue
+        held = c["held_out"]
+        lines.append(f"| {c['step']} | {c['effect']} | {c['axis']} | {c['score']:+.0f} | {c['score_se']:.0f} "
+                     f"| {c['score_per_sample']:+.3f} | {'yes' if c['passes'] else 'no'} | "
+                     f"{held['rmse_psi']:.3f} | {held['V']:.3f} | {c['seconds']:.0f} |")  # fmt: skip
+    lines += ["", "## 4. Steps", ""]
+    for s in steps:
+        what = ", ".join(s["added"]) if s["added"] else s.get("decision", "")
+        lines.append(f"- step {s['step']}: {what}")
+    lines += ["", "## 5. Before and after", "",
+              "| window | model | RMSE pitch [rad] | RMSE yaw [rad] | V [rad^2] | 90 % pitch | 90 % yaw |",
+              "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for w in result["gap_before"]:
+        lines.append(f"| {w} | before | {_fmt_gap(result['gap_before'][w])} |")
+        lines.append(f"| {w} | after | {_fmt_gap(result['gap_after'][w])} |")
+    if len(result["gap_before"]) > 1:
+        lines.append(f"| whole span | before | {_fmt_gap(whole['before'])} |")
+        lines.append(f"| whole span | after | {_fmt_gap(whole['after'])} |")
+    if result["added"]:
+        lines += ["", "Added parameters (NUTS posterior mean, 95 % interval):", ""]
+        for a in result["added"]:
+            for name, p in a["parameters"].items():
+                lines.append(f"- {a['effect']} ({a['axis']}): {name} = {p['mean']:.4g} "
+                             f"[{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}] {p['unit']}")  # fmt: skip
+        if converged is False:
+            lines += ["", "**Warning:** the NUTS refit did not converge (see `refit/summary.json`)."]
+    lines += ["", "Figures: `residuals.png`, `candidates.png`, `bands_before.png`, `bands_after.png`.", ""]
+    return "\n".join(lines)

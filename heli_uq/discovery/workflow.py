@@ -1,0 +1,384 @@
+"""``discover``: locate the gap, learn the missing torque, name the effect, refit, compare.
+
+Steps (the module of each in parentheses):
+
+1. **Windows.**  With ``train`` and ``test`` the candidates are fitted on ``train`` and
+   scored on ``test``, and the refit uses ``train``.  Without, the fits use the first
+   :data:`FIT_FRACTION` of the window and are scored on the rest (leave-future-out), and
+   the refit uses the whole window.
+2. **Locate** (:mod:`~heli_uq.discovery.locate`): the base model's MAP and Laplace
+   predictive; where the data leave the 90 % band, by axis, input segment and state.
+3. **Learn** (:mod:`~heli_uq.discovery.implied`, :mod:`~heli_uq.discovery.sindy`): the
+   torque the data imply, regressed with pysindy on every candidate effect's feature;
+   the ranking orders the candidates and gives start values.
+4. **Name** (:mod:`~heli_uq.discovery.candidates`, :mod:`~heli_uq.discovery.score`):
+   every candidate effect (each effect of the vocabulary on each axis, not yet in the
+   model) is added to the current model, fitted and scored on held-out blocks; with two
+   or more effects still allowed, pairs of the best :attr:`Budget.pair_top` singles too
+   (single effects can be weak alone and strong together, as friction and a torque offset
+   on the rig's yaw).  The fits are independent Dask tasks
+   (:func:`heli_uq.executor.run_tasks`) and are saved as they finish, so a rerun with the
+   same output directory reuses them.
+5. **Decide.**  The best model beats the current one if its score difference exceeds both
+   :data:`~heli_uq.discovery.score.MARGIN_SE` standard errors and
+   :data:`~heli_uq.discovery.score.MARGIN_PER_SAMPLE` nats per held-out
+   sample (calibrated on records without a hidden effect,
+   ``studies/discovery_calibration.py``).  Among models that pass, one more effect must
+   again pass the margin against the smaller model (parsimony).  With ``max_effects > 1``
+   the step repeats from the chosen model until nothing passes.
+6. **Refit** the chosen model with NUTS (:func:`heli_uq.output.sample_posterior`) and
+   report the gap before and after.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import itertools
+import json
+import pathlib
+import time
+
+import numpy as np
+
+from heli_uq.data import Experiment
+from heli_uq.discovery.candidates import FitTask, fit_and_score, fitted_predictive, score_fitted
+from heli_uq.discovery.implied import base_features, effect_features, implied_torque
+from heli_uq.discovery.locate import locate
+from heli_uq.discovery.report import write_outputs
+from heli_uq.discovery.score import GAP_KEYS, compare, gap_metrics, passes
+from heli_uq.discovery.sindy import rank_effects
+from heli_uq.errors import ParameterError
+from heli_uq.executor import TaskFailed, run_tasks
+from heli_uq.io import atomic_write_text
+from heli_uq.model import AXES, EFFECTS, build_model
+
+__all__ = ["discover", "Budget", "BUDGETS", "FIT_FRACTION", "MIN_SECONDS"]  # fmt: skip
+
+#: Fraction of the window the candidates are fitted on when no train/test split is given.
+FIT_FRACTION = 0.7
+#: Shortest window [s] discovery accepts (fitting and held-out part together).
+MIN_SECONDS = 20.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """Effort of a discovery run.
+
+    ``n_starts``: MAP starts of the base model; ``cold_starts``: starts of a candidate
+    beyond its warm guesses (the current model's MAP with the new parameters at their
+    probe and implied values); ``draws``: Laplace draws per candidate; ``pair_top``: how
+    many of the best singles are paired; ``chains, warmup, samples``: the NUTS refit;
+    ``nuts_before``: the base model gets a NUTS posterior too (else its Laplace
+    approximation is *before*); ``newton_steps``: of each MAP polish.
+    """
+
+    n_starts: int
+    cold_starts: int
+    draws: int
+    pair_top: int
+    chains: int
+    warmup: int
+    samples: int
+    nuts_before: bool = False
+    newton_steps: int = 4
+
+
+BUDGETS = {"quick": Budget(n_starts=2, cold_starts=0, draws=64, pair_top=3, chains=2, warmup=250,
+                           samples=250),
+           "full": Budget(n_starts=4, cold_starts=1, draws=200, pair_top=4, chains=4, warmup=1000,
+                          samples=1000,
+                          nuts_before=True, newton_steps=10)}
+
+
+def _windows(record: Experiment, window, train, test):
+    t0, t1 = float(record.t[0]), float(record.t[0] + record.duration)
+    if (train is None) != (test is None):
+        raise ParameterError("train, test: give both or neither")
+    if train is not None:
+        for name, (a, b) in (("train", train), ("test", test)):
+            if not (t0 - 1e-9 <= a < b <= t1 + 1e-9):
+                raise ParameterError(f"{name}: window {a:g}:{b:g} s is outside the record "
+                                     f"({t0:g}:{t1:g} s)")  # fmt: skip
+        fit, score, refit = tuple(train), tuple(test), (tuple(train), tuple(test))
+    else:
+        a, b = window if window is not None else (t0, t1)
+        if not (t0 - 1e-9 <= a < b <= t1 + 1e-9):
+            raise ParameterError(f"window: {a:g}:{b:g} s is outside the record ({t0:g}:{t1:g} s)")
+        cut = round(a + FIT_FRACTION * (b - a), 2)
+        fit, score, refit = (a, cut), (cut, b), ((a, b), None)
+    span = score[1] - fit[0]
+    if span < MIN_SECONDS:
+        raise ParameterError(f"window: {span:g} s is too short to fit and score models; discovery "
+                             f"needs at least {MIN_SECONDS:g} s")  # fmt: skip
+    return fit, score, refit
+
+
+def _candidate_effects(current: list[str], vocabulary=None) -> list[str]:
+    have = set(current)
+    pool = vocabulary or [f"{axis}:{kind}" for axis in AXES for kind in EFFECTS]
+    return [e for e in pool if e not in have]
+
+
+def _clip_to_support(model, values: dict) -> dict:
+    out = {}
+    for par in model.parameters():
+        if par.name in values and np.isfinite(values[par.name]):
+            lo, hi = par.interval
+            v = float(np.clip(values[par.name], lo, hi))
+            out[par.name] = v if (lo < v < hi) or par.support == "real" else par.start_value()
+    return out
+
+
+def _guesses(current_map: dict, effects: list[str], implied: dict) -> tuple[dict, ...]:
+    """Warm starts: the current MAP with the new effects at their probe values, and at the
+    values the sparse regression implies (clipped into their supports)."""
+    model = build_model(effects)
+    new = [p.name for p in model.parameters() if p.name not in current_map]
+    probe = {**current_map, **{n: model.parameter(n).start_value() for n in new}}
+    seeded = {**probe, **_clip_to_support(model, {n: implied.get(n, np.nan) for n in new})}
+    return (probe, seeded) if seeded != probe else (probe,)
+
+
+def _key(effects) -> str:
+    return "+".join(effects) if effects else "base"
+
+
+def _signature(record: Experiment, task: FitTask) -> str:
+    h = hashlib.sha256()
+    for a in (record.t, record.u, record.y):
+        h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
+    h.update(json.dumps([task.fit_window, task.score_window, task.effects, task.seed,
+                         task.n_starts, task.draws, task.newton_steps, task.guesses],
+                        default=float).encode())  # fmt: skip
+    return h.hexdigest()
+
+
+class _Store:
+    """Finished candidate fits under ``out/candidates/`` (reused by a rerun)."""
+
+    def __init__(self, out: pathlib.Path):
+        self.dir = out / "candidates"
+        self.dir.mkdir(parents=True, exist_ok=True)
+
+    def path(self, key: str) -> pathlib.Path:
+        return self.dir / (key.replace(":", "-") + ".json")
+
+    def load(self, key: str, signature: str):
+        try:
+            stored = json.loads(self.path(key).read_text())
+        except (OSError, ValueError):
+            return None
+        return stored["result"] if stored.get("signature") == signature else None
+
+    def save(self, key: str, signature: str, result: dict) -> None:
+        atomic_write_text(self.path(key), json.dumps({"signature": signature, "result": result}))
+
+
+def _run_round(tasks: dict, store: _Store, record, scheduler, log) -> dict:
+    """Fit every task not already stored; ``{key: result}`` (a failed one: ``{"error"}``)."""
+    sigs = {k: _signature(record, t) for k, t in tasks.items()}
+    done = {k: r for k in tasks if (r := store.load(k, sigs[k])) is not None}
+    if done:
+        log(f"reusing {len(done)} stored fit(s): {', '.join(done)}")
+    todo = {k: t for k, t in tasks.items() if k not in done}
+
+    def finished(key, result):
+        if isinstance(result, TaskFailed):
+            log(f"  {key}: failed ({result['error']})")
+            return
+        store.save(key, sigs[key], result)
+        log(f"  {key}: fitted in {result['seconds']:.0f} s, held-out psi RMSE "
+            f"{result['score']['rmse_psi']:.3f} rad")  # fmt: skip
+
+    if todo:
+        log(f"fitting {len(todo)} model(s) ({'serial' if scheduler == 'serial' else 'Dask'}): "
+            f"{', '.join(todo)}")  # fmt: skip
+    fresh = run_tasks(fit_and_score, todo, scheduler=scheduler, on_result=finished)
+    return {k: dict(done.get(k) or fresh[k]) for k in tasks}
+
+
+def _rank(results: dict, reference: dict, n_scored: int) -> list[dict]:
+    """Candidates with their score difference to ``reference`` and its SE, best first."""
+    rows = []
+    for key, res in results.items():
+        if "error" in res:
+            rows.append({"effect": key, "score": None, "score_se": None, "error": res["error"]})
+            continue
+        diff, se = compare(res["block_scores"], reference["block_scores"])
+        rows.append({"effect": key, "score": diff, "score_se": se,
+                     "score_per_sample": diff / n_scored,
+                     "passes": passes(res["block_scores"], reference["block_scores"], n_scored),
+                     "held_out": res["score"], "fit": res["fit"], "map_value": res["map_value"],
+                     "seconds": res["seconds"]})  # fmt: skip
+    rows.sort(key=lambda r: -np.inf if r["score"] is None else -r["score"])
+    return rows
+
+
+def discover(record: Experiment, out_dir, *, window=None, train=None, test=None, base_effects=(),
+             budget="quick", max_effects: int = 1, candidates=None, seed: int = 0,
+             scheduler="local", log=print) -> dict:  # fmt: skip
+    """Run the discovery workflow (module docstring) and write its outputs to ``out_dir``.
+
+    Parameters
+    ----------
+    record : Experiment
+    out_dir : path
+        Receives ``discovery.json``, ``report.md``, figures, ``candidates/`` (each fit)
+        and ``refit/`` (the NUTS posterior of the chosen model).
+    window : (float, float), optional
+        Part of the record [s] (without ``train``/``test``).
+    train, test : (float, float), optional
+        Fitting and held-out windows [s].
+    base_effects : sequence of str
+        Effects ``"axis:kind"`` already in the base model.
+    budget : {"quick", "full"} or Budget
+    max_effects : int
+        Most effects added (greedy steps, pairs considered).
+    candidates : sequence of str, optional
+        The effects ``"axis:kind"`` to try (default: every effect of the vocabulary on
+        each axis).
+    seed : int
+    scheduler : {"local", "serial"} or address
+        See :func:`heli_uq.executor.run_tasks`.
+    log : callable
+        Progress messages.
+
+    Returns
+    -------
+    dict
+        The content of ``discovery.json``.
+    """
+    t_start = time.perf_counter()
+    if not isinstance(budget, Budget) and budget not in BUDGETS:
+        raise ParameterError(f"budget: expected one of {', '.join(BUDGETS)}, found {budget!r}")
+    if not (isinstance(max_effects, int) and max_effects >= 1):
+        raise ParameterError(f"max_effects: expected an integer >= 1, found {max_effects!r}")
+    cost = budget if isinstance(budget, Budget) else BUDGETS[budget]
+    base_effects = list(base_effects)
+    build_model(base_effects, where="base_effects")  # validates names
+    vocabulary = None if candidates is None else list(candidates)
+    if vocabulary is not None:
+        build_model(vocabulary, where="candidates")
+    fit_w, score_w, (refit_train, refit_test) = _windows(record, window, train, test)
+    out = pathlib.Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    store = _Store(out)
+
+    def task(effects, guesses=()):
+        starts = cost.n_starts if not guesses else len(guesses) + cost.cold_starts
+        return FitTask(record, fit_w, score_w, tuple(effects), tuple(guesses), seed, starts,
+                       cost.draws, cost.newton_steps)  # fmt: skip
+
+    def elapsed():
+        return f"[{time.perf_counter() - t_start:5.0f} s]"
+
+    def say(msg):
+        log(f"{elapsed()} {msg}")
+
+    # 1-2. base fit and where it fails
+    say(f"fitting the base model ({build_model(base_effects).label}) on {fit_w[0]:g}:{fit_w[1]:g} s")
+    base_task = task(base_effects)
+    base_fit = fitted_predictive(base_task)
+    base = score_fitted(base_fit, base_task)
+    n_scored = int(sum(b - a for a, b in _blocks_of(base_fit)))
+    where = locate(base_fit, out)
+    say(f"base model: held-out yaw RMSE {base['score']['rmse_psi']:.3f} rad, 90 % coverage "
+        f"{base['score']['coverage90_psi']:.0%}; worst axis: {where['axis']}")  # fmt: skip
+
+    # 3. the torque the data imply, and the sparse regression
+    fw = record.window(*fit_w)
+    model = build_model(base_effects)
+    data = implied_torque(model, base_fit.params, fw.y, fw.u, record.dt)
+    cands = {e: effect_features(model, base_fit.params, e, data)
+             for e in _candidate_effects(base_effects, vocabulary)}
+    ranking = rank_effects(data.residual, base_features(model, base_fit.params, data), cands, seed=seed)
+    implied = {r["effect"]: r["implied"] for r in ranking}
+    say("sparse regression (pysindy) on the implied torque: "
+        + ", ".join(f"{r['effect']} {r['inclusion']:.2f}" for r in ranking[:5]))  # fmt: skip
+
+    # 4-5. name: greedy steps over singles and pairs
+    current, current_res, current_map = list(base_effects), base, base_fit.params
+    steps, all_rows = [], []
+    while len(current) - len(base_effects) < max_effects:
+        singles = {}
+        for e in _candidate_effects(current, vocabulary):
+            singles[_key(current + [e])] = task(current + [e], _guesses(current_map, current + [e],
+                                                                        implied.get(e, {})))  # fmt: skip
+        results = _run_round(singles, store, record, scheduler, say)
+        rows = _rank(results, current_res, n_scored)
+        room = max_effects - (len(current) - len(base_effects))
+        if room >= 2 and cost.pair_top >= 2:
+            top = [r["effect"] for r in rows if r["score"] is not None][: cost.pair_top]
+            pairs = {}
+            for a, b in itertools.combinations(top, 2):
+                ea, eb = a.split("+")[-1], b.split("+")[-1]
+                effects = current + [ea, eb]
+                guess = {**results[a]["map"], **{k: v for k, v in results[b]["map"].items()
+                                                 if k not in results[a]["map"]}}  # fmt: skip
+                pairs[_key(effects)] = task(effects, (guess,) + _guesses(current_map, effects, {}))
+            pair_results = _run_round(pairs, store, record, scheduler, say)
+            results.update(pair_results)
+            rows = _rank(results, current_res, n_scored)
+        for r in rows:
+            r["step"] = len(steps) + 1
+            r["added"] = [e for e in r["effect"].split("+") if e not in current]
+        all_rows += rows
+        choice = _choose(rows, results, n_scored)
+        if choice is None:
+            steps.append({"step": len(steps) + 1, "added": [], "decision": "nothing passes the margin"})
+            break
+        added = choice["added"]
+        steps.append({"step": len(steps) + 1, "added": added, "score": choice["score"],
+                      "score_se": choice["score_se"]})  # fmt: skip
+        say(f"step {len(steps)}: adding {', '.join(added)} (score +{choice['score']:.0f} ± "
+            f"{choice['score_se']:.0f} nats)")  # fmt: skip
+        current = current + added
+        current_res = results[choice["effect"]]
+        current_map = current_res["map"]
+
+    added = current[len(base_effects):]
+    # 6. refit and compare
+    result = write_outputs(
+        out, record=record, base_effects=base_effects, added=added, base=base, base_fit=base_fit,
+        where=where, ranking=ranking, rows=all_rows, steps=steps, cost=cost, budget=budget,
+        seed=seed, full=cost.nuts_before, refit=(refit_train, refit_test), fit_window=fit_w,
+        score_window=score_w,
+        n_scored=n_scored, say=say, t_start=t_start)  # fmt: skip
+    return result
+
+
+def _blocks_of(fitted) -> list[tuple[int, int]]:
+    from heli_uq.discovery.score import MIN_BLOCKS, input_blocks
+
+    c, d = fitted.start.problem.windows()["test"]
+    return input_blocks(fitted.start.problem.u[c:d], fitted.start.problem.dt, min_blocks=MIN_BLOCKS)
+
+
+def _choose(rows: list[dict], results: dict, n_scored: int):
+    """The row to add (module docstring, step 5), or None."""
+    passing = [r for r in rows if r.get("passes")]
+    if not passing:
+        return None
+    best_single = next((r for r in passing if len(r["added"]) == 1), None)
+    best_pair = next((r for r in passing if len(r["added"]) == 2), None)
+    if best_pair is None:
+        return best_single
+    if best_single is None:
+        return best_pair
+    # the pair must beat the single by the margin too
+    better = passes(results[best_pair["effect"]]["block_scores"],
+                    results[best_single["effect"]]["block_scores"], n_scored)  # fmt: skip
+    return best_pair if better else best_single
+
+
+def gap_record(metrics: dict) -> dict:
+    """The five gap numbers (``GAP_KEYS``) of a metrics dict."""
+    return {k: float(metrics[k]) for k in GAP_KEYS}
+
+
+def laplace_gap(fitted, windows: dict) -> dict:
+    """Gap metrics of a Laplace predictive on each window ``{name: (start, stop)}``."""
+    y = fitted.start.problem.y
+    return {w: gap_metrics(fitted.y_sim[:, a:b], fitted.y_pred[:, a:b], y[a:b])
+            for w, (a, b) in windows.items()}  # fmt: skip

@@ -1,0 +1,121 @@
+"""Independent tasks (candidate fits, SBC replicates, records of a study) on Dask.
+
+:func:`run_tasks` maps a top-level function over named arguments and returns every
+task's result or the reason it failed; one failed task never aborts the others.
+
+Schedulers
+----------
+``"local"`` (default)
+    A ``dask.distributed.LocalCluster`` of worker *processes*, one thread each, started
+    with ``spawn``: a process that has already imported JAX is never forked (forking a
+    running XLA runtime can deadlock).  Workers share the JAX compilation cache of
+    :data:`CACHE_ENV` (set here to ``~/.cache/heli_uq/jax`` when unset), so a program
+    compiled by one worker or an earlier run is not compiled again.
+``"serial"``
+    In this process, one task after another (tests, debugging, one-core machines).
+an address (``tcp://host:8786``)
+    An existing Dask scheduler (``Client(address)``); its workers must have ``heli_uq``.
+
+Layer 0: imports nothing else of the package.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import traceback
+from collections.abc import Callable, Mapping
+
+__all__ = ["run_tasks", "TaskFailed", "CACHE_ENV", "default_workers"]
+
+#: Environment variable (read by JAX) naming the persistent compilation cache directory.
+CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
+
+
+class TaskFailed(dict):
+    """The result of a task that raised: ``{"error": "<Type>: <message>"}``."""
+
+
+def default_workers(n_tasks: int) -> int:
+    """One worker per core, at most one per task."""
+    return max(1, min(os.cpu_count() or 1, n_tasks))
+
+
+def _guarded(fn: Callable, arg):
+    """Run ``fn(arg)``; an exception becomes a :class:`TaskFailed` (so it crosses processes
+    as data and never cancels the other tasks)."""
+    try:
+        return fn(arg)
+    except Exception as exc:  # noqa: BLE001 - reported per task, by design
+        last = traceback.extract_tb(exc.__traceback__)[-1:] or [None]
+        where = f" (at {pathlib.Path(last[0].filename).name}:{last[0].lineno})" if last[0] else ""
+        return TaskFailed(error=f"{type(exc).__name__}: {exc}{where}")
+
+
+def _share_compilation_cache() -> None:
+    if not os.environ.get(CACHE_ENV):
+        path = pathlib.Path.home() / ".cache" / "heli_uq" / "jax"
+        path.mkdir(parents=True, exist_ok=True)
+        os.environ[CACHE_ENV] = str(path)
+
+
+def run_tasks(fn: Callable, tasks: Mapping, *, scheduler: str | None = "local", workers: int | None = None,
+              on_result: Callable | None = None) -> dict:  # fmt: skip
+    """``{key: fn(arg)}`` for ``tasks = {key: arg}``, each task independent.
+
+    Parameters
+    ----------
+    fn : callable
+        A module-level function (picklable), ``fn(arg) -> result`` (picklable).
+    tasks : mapping
+        Task key -> argument.  Keys are returned in the same order.
+    scheduler : {"local", "serial"} or str
+        See the module docstring; ``None`` means ``"local"``.
+    workers : int, optional
+        Worker processes of the local cluster (default :func:`default_workers`).
+    on_result : callable, optional
+        ``on_result(key, result)``, called in this process as each task finishes (e.g. to
+        save it, so an interrupted run can reuse it).
+
+    Returns
+    -------
+    dict
+        ``{key: result}``; a task that raised gives a :class:`TaskFailed`.
+    """
+    keys = list(tasks)
+    results = {}
+
+    def finish(key, result):
+        results[key] = result
+        if on_result is not None:
+            on_result(key, result)
+
+    if not keys:
+        return {}
+    if scheduler == "serial":
+        for key in keys:
+            finish(key, _guarded(fn, tasks[key]))
+        return {k: results[k] for k in keys}
+
+    import dask
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    _share_compilation_cache()
+    with dask.config.set({"distributed.worker.multiprocessing-method": "spawn",
+                          "distributed.worker.daemon": False}):  # fmt: skip
+        if scheduler in (None, "local"):
+            cluster = LocalCluster(n_workers=workers or default_workers(len(keys)), threads_per_worker=1,
+                                   processes=True, dashboard_address=None)  # fmt: skip
+            client = Client(cluster)
+        else:
+            cluster, client = None, Client(scheduler)
+        try:
+            futures = {client.submit(_guarded, fn, tasks[k], key=f"heli_uq-{k}-{os.getpid()}",
+                                     pure=False): k for k in keys}  # fmt: skip
+            for future in as_completed(futures):
+                finish(futures[future], future.result())
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    return {k: results[k] for k in keys}

@@ -1,0 +1,89 @@
+"""``discover`` end to end on short synthetic records with a known truth, and its bad input.
+
+The records are rig-like (base parameters of a rig fit, noise 3 / 8 mrad, quantised),
+short and with a restricted candidate list, so the workflow runs in minutes; the full
+vocabulary on 131 s records is ``studies/discovery_confusion.py``.
+"""
+
+import json
+
+import pytest
+
+from heli_uq.cli.main import main
+from heli_uq.discovery import DISCOVERY_KEYS, Budget, discover
+from heli_uq.errors import ParameterError
+from heli_uq.io import atomic_write_text
+from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model
+from heli_uq.simulation import synthetic_experiment
+from heli_uq.simulation.synthetic import ENCODER_QUANTUM
+
+#: Small effort: warm starts only, 40 Laplace draws, no pairs, NUTS 2 x (150 + 150).
+TINY = Budget(n_starts=2, cold_starts=0, draws=40, pair_top=0, chains=2, warmup=150, samples=150)
+CANDIDATES = ("yaw:coulomb_friction", "yaw:torque_offset", "yaw:quadratic_drag", "pitch:torque_offset")
+SECONDS, SPLIT = 30.0, 21.0
+HIDDEN_F_C = 0.012  # N m, the rig's yaw friction is ~0.018
+
+
+def _record(effects, values, seed):
+    return synthetic_experiment({**RIG_FIT, **values}, RIG_FIT_X0, duration=SECONDS, inputs="rig_steps",
+                                noise_std=(0.003, 0.008), seed=seed, model=build_model(effects),
+                                quantum=ENCODER_QUANTUM)  # fmt: skip
+
+
+@pytest.mark.slow
+def test_discover_names_hidden_yaw_friction_and_closes_the_gap(tmp_path):
+    rec = _record(["yaw:coulomb_friction"], {"F_c_yaw": HIDDEN_F_C}, seed=11)
+    res = discover(rec, tmp_path, train=(0.0, SPLIT), test=(SPLIT, SECONDS), budget=TINY,
+                   candidates=CANDIDATES, scheduler="serial", log=lambda m: None)  # fmt: skip
+    assert tuple(res) == DISCOVERY_KEYS
+    assert json.loads((tmp_path / "discovery.json").read_text()) == res
+    assert (res["effect"], res["axis"]) == ("coulomb_friction", "yaw")
+    lo, hi = res["parameters"]["F_c"]["ci95"]
+    assert lo <= HIDDEN_F_C <= hi
+    assert res["gap_after"]["test"]["rmse_psi"] < res["gap_before"]["test"]["rmse_psi"]
+    assert res["candidates"][0]["effect"] == "coulomb_friction" and res["candidates"][0]["score_se"] > 0
+    for name in ("report.md", "bands_before.png", "bands_after.png", "residuals.png", "candidates.png",
+                 "refit/posterior.nc"):  # fmt: skip
+        assert (tmp_path / name).stat().st_size > 0, name
+
+
+@pytest.mark.slow
+def test_discover_says_none_without_a_hidden_effect_and_reuses_fits(tmp_path):
+    rec = _record([], {}, seed=12)
+    kwargs = dict(train=(0.0, SPLIT), test=(SPLIT, SECONDS), budget=TINY, candidates=CANDIDATES,
+                  scheduler="serial")  # fmt: skip
+    res = discover(rec, tmp_path, log=lambda m: None, **kwargs)
+    assert res["effect"] == "none" and res["axis"] is None and res["added"] == []
+    assert res["gap_after"] == res["gap_before"]
+    assert len(res["candidates"]) == len(CANDIDATES)
+    messages = []
+    again = discover(rec, tmp_path, log=messages.append, **kwargs)
+    assert any("reusing 4 stored fit(s)" in m for m in messages), messages
+    assert again["candidates"] == res["candidates"]
+
+
+def test_bad_input_is_refused_before_any_fit(tmp_path):
+    rec = _record([], {}, seed=1)
+    with pytest.raises(ParameterError, match="unknown effect 'stiction'"):
+        discover(rec, tmp_path, base_effects=["yaw:stiction"])
+    with pytest.raises(ParameterError, match="outside the record"):
+        discover(rec, tmp_path, train=(0.0, 20.0), test=(20.0, 40.0))
+    with pytest.raises(ParameterError, match="too short"):
+        discover(rec, tmp_path, window=(0.0, 10.0))
+    with pytest.raises(ParameterError, match="budget"):
+        discover(rec, tmp_path, budget="huge")
+
+
+def test_cli_bad_input_is_one_line(tmp_path, capsys):
+    csv = tmp_path / "rec.csv"
+    rec = _record([], {}, seed=1)
+    lines = ["u_theta,u_psi,theta,psi,dt"] + [
+        f"{u[0]},{u[1]},{y[0]},{y[1]},{0.01 if i == 0 else ''}" for i, (u, y) in enumerate(zip(rec.u, rec.y))]
+    atomic_write_text(csv, "\n".join(lines) + "\n")
+    for argv, needle in ((["--base-effects", "yaw:stiction"], "unknown effect 'stiction'"),
+                         (["--window", "0:10"], "too short"),
+                         (["--train", "0:20"], "--train and --test go together"),
+                         (["--max-effects", "0"], "--max-effects")):  # fmt: skip
+        code = main(["discover", str(csv), "--out", str(tmp_path / "o"), *argv])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and needle in err[0], (argv, err)

@@ -1,0 +1,156 @@
+"""The parts of the discovery workflow, each against an independent form: blocked scores,
+the implied torque, effect features, the pysindy ranking and the task executor."""
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from heli_uq.discovery.implied import base_features, effect_features, implied_torque
+from heli_uq.discovery.score import (
+    MARGIN_PER_SAMPLE,
+    MARGIN_SE,
+    block_scores,
+    compare,
+    gap_metrics,
+    input_blocks,
+    passes,
+)
+from heli_uq.discovery.sindy import rank_effects
+from heli_uq.executor import TaskFailed, run_tasks
+from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model
+from heli_uq.model.terms.coulomb_friction import OMEGA_S
+from heli_uq.model.terms.rigid_body import yaw_inertia
+from heli_uq.simulation import synthetic_experiment
+
+#: Relative tolerance of a torque recovered from smoothed, differentiated noise-free angles.
+IMPLIED_RTOL = 0.05
+#: An implied effect parameter from the sparse regression is a start value, not an
+#: estimate: smoothing blurs the stick-slip transitions of friction.  Within this factor.
+IMPLIED_PARAM_FACTOR = 2.0
+
+
+def test_input_blocks_follow_voltage_changes_and_merge_short_runs():
+    dt = 0.01
+    u = np.zeros((1000, 2))
+    u[300:, 0] = 1.0  # change at 3 s
+    u[350:, 1] = 1.0  # 0.5 s later: too short a run, merged into the previous block
+    u[700:, 0] = 2.0
+    assert input_blocks(u, dt, min_block_s=2.0) == [(0, 350), (350, 700), (700, 1000)]
+    assert input_blocks(u, dt, min_block_s=4.0) == [(0, 1000)]  # all shorter than 4 s: one block
+    assert input_blocks(u, dt, min_block_s=4.0, min_blocks=4) == [(0, 250), (250, 500), (500, 750),
+                                                                  (750, 1000)]  # fmt: skip
+    assert input_blocks(u, dt, min_block_s=0.0) == [(0, 300), (300, 350), (350, 700), (700, 1000)]
+
+
+def test_block_scores_equal_the_mixture_density_summed_per_block():
+    rng = np.random.default_rng(0)
+    s, n = 7, 40
+    y_sim = rng.normal(size=(s, n, 2))
+    sigma = rng.uniform(0.5, 2.0, size=(s, 2))
+    y = rng.normal(size=(n, 2))
+    blocks = [(0, 15), (15, 40)]
+    dens = np.mean([np.prod(norm.pdf(y, y_sim[k], sigma[k]), axis=1) for k in range(s)], axis=0)
+    want = [np.log(dens[a:b]).sum() for a, b in blocks]
+    np.testing.assert_allclose(block_scores(y_sim, sigma, y, blocks), want, rtol=1e-10)
+
+
+def test_compare_and_margin():
+    d = np.array([3.0, 5.0, 4.0, 6.0])
+    diff, se = compare(d + 10.0, np.full(4, 10.0))
+    assert diff == pytest.approx(18.0)
+    assert se == pytest.approx(2.0 * np.std(d, ddof=1))
+    assert compare([1.0, -np.inf], [0.0, 0.0])[0] == -np.inf
+    n = 1000  # held-out samples: the per-sample margin is MARGIN_PER_SAMPLE * n nats
+    need = MARGIN_PER_SAMPLE * n
+    base = np.zeros(5)
+    assert passes(base + 2 * need / 5, base, n)  # every block better, above the margin
+    assert not passes(base + 0.5 * need / 5, base, n)  # below the per-sample margin
+    mixed = np.array([10.0, -9.0, 10.0, -9.0, 10.0]) * need  # big total, inconsistent blocks
+    assert not passes(mixed, base, n)
+    growing = np.array([0.1, 1.0, 10.0, 100.0, 1000.0]) * need  # drift: large SE, all positive
+    assert compare(growing, base)[0] < MARGIN_SE * compare(growing, base)[1]
+    assert passes(growing, base, n)
+
+
+#: Sampling tolerance of a coverage estimated from 2000 points (about 4.5 standard errors).
+COVERAGE_ATOL = 0.03
+
+
+def test_gap_metrics_of_a_known_ensemble():
+    """Data drawn from the predictive distribution itself: 90 % coverage, RMSE and V of the
+    mean simulation against their direct forms."""
+    rng = np.random.default_rng(1)
+    mu = np.array([0.1, -0.2])
+    sim = np.zeros((400, 2000, 2)) + mu
+    pred = sim + rng.normal(size=sim.shape)
+    y = mu + rng.normal(size=(2000, 2))
+    g = gap_metrics(sim, pred, y)
+    rmse = np.sqrt(np.mean((y - mu) ** 2, axis=0))
+    assert g["rmse_theta"] == pytest.approx(rmse[0]) and g["rmse_psi"] == pytest.approx(rmse[1])
+    assert g["V"] == pytest.approx(np.mean(np.sum((y - mu) ** 2, axis=1)))  # Eq. 1
+    assert abs(g["coverage90_theta"] - 0.9) < COVERAGE_ATOL
+    assert abs(g["coverage90_psi"] - 0.9) < COVERAGE_ATOL
+
+
+@pytest.fixture(scope="module")
+def friction_record():
+    """Noise-free rig-like record with Coulomb friction F_c = 0.015 N m hidden in yaw."""
+    model = build_model(["yaw:coulomb_friction"])
+    params = {**RIG_FIT, "F_c_yaw": 0.015}
+    rec = synthetic_experiment(params, RIG_FIT_X0, duration=40.0, inputs="rig_steps",
+                               noise_std=(0.0, 0.0), seed=5, model=model)  # fmt: skip
+    return rec, params
+
+
+def test_implied_torque_is_the_hidden_friction(friction_record):
+    """With the true base parameters, the implied yaw torque is -F_c tanh(omega/omega_s)
+    (independent form) wherever yaw moves steadily."""
+    rec, params = friction_record
+    data = implied_torque(build_model([]), RIG_FIT, rec.y, rec.u, rec.dt)
+    omega = data.v[:, 1]
+    accel = np.abs(data.a[:, 1])
+    steady = (np.abs(omega) > 0.05) & (accel < 0.2)
+    steady[:100] = steady[-100:] = False
+    assert steady.sum() > 500
+    want = -params["F_c_yaw"] * np.tanh(omega[steady] / OMEGA_S)
+    np.testing.assert_allclose(np.median(data.tau[steady, 1] / want), 1.0, rtol=IMPLIED_RTOL)
+
+
+def test_effect_feature_is_the_torque_per_unit_parameter(friction_record):
+    rec, _ = friction_record
+    data = implied_torque(build_model([]), RIG_FIT, rec.y, rec.u, rec.dt)
+    names, cols = effect_features(build_model([]), RIG_FIT, "yaw:torque_offset", data)
+    assert names == ["T_0_yaw"]
+    m22 = np.asarray(yaw_inertia(RIG_FIT, data.x[:, 0]))
+    np.testing.assert_allclose(cols[:, 1, 0], 1.0 / m22, rtol=1e-9)
+    np.testing.assert_allclose(cols[:, 0, 0], 0.0, atol=1e-12)
+
+
+def test_sparse_regression_ranks_the_hidden_effect_first(friction_record):
+    rec, params = friction_record
+    base = build_model([])
+    data = implied_torque(base, RIG_FIT, rec.y, rec.u, rec.dt)
+    cands = {e: effect_features(base, RIG_FIT, e, data)
+             for e in ("yaw:coulomb_friction", "yaw:torque_offset", "yaw:quadratic_drag",
+                       "pitch:coulomb_friction", "pitch:torque_offset")}  # fmt: skip
+    ranking = rank_effects(data.residual, base_features(base, RIG_FIT, data), cands, seed=0)
+    assert ranking[0]["effect"] == "yaw:coulomb_friction"
+    ratio = ranking[0]["implied"]["F_c_yaw"] / params["F_c_yaw"]
+    assert 1 / IMPLIED_PARAM_FACTOR < ratio < IMPLIED_PARAM_FACTOR
+
+
+def _square_or_fail(x):
+    if x < 0:
+        raise ValueError("negative input")
+    return x * x
+
+
+@pytest.mark.parametrize("scheduler", ["serial", "local"])
+def test_run_tasks_reports_each_failure_and_finishes_the_rest(scheduler):
+    seen = []
+    out = run_tasks(_square_or_fail, {"a": 2, "b": -1, "c": 3}, scheduler=scheduler, workers=2,
+                    on_result=lambda k, r: seen.append(k))  # fmt: skip
+    assert list(out) == ["a", "b", "c"]
+    assert out["a"] == 4 and out["c"] == 9
+    assert isinstance(out["b"], TaskFailed) and "ValueError: negative input" in out["b"]["error"]
+    assert sorted(seen) == ["a", "b", "c"]

@@ -18,10 +18,14 @@ from heli_uq.simulation import synthetic_experiment
 from heli_uq.simulation.synthetic import ENCODER_QUANTUM
 
 #: Small effort: warm starts only, 40 Laplace draws, no pairs, NUTS 2 x (150 + 150).
-TINY = Budget(n_starts=2, cold_starts=0, draws=40, pair_top=0, chains=2, warmup=150, samples=150)
+TINY = Budget(n_starts=2, cold_starts=0, draws=40, pair_top=0, chains=2, warmup=150, samples=150,
+              max_tree_depth=6)
 CANDIDATES = ("yaw:coulomb_friction", "yaw:torque_offset", "yaw:quadratic_drag", "pitch:torque_offset")
 SECONDS, SPLIT = 30.0, 21.0
-HIDDEN_F_C = 0.012  # N m, the rig's yaw friction is ~0.018
+#: Hidden yaw torque offset [N m] (a fit of the rig's yaw with friction gives -0.07).  Not
+#: friction: the NUTS refit of a stiff friction model takes minutes; the confusion study
+#: covers every effect (studies/discovery_confusion.py).
+HIDDEN_T_0 = -0.01
 
 
 def _record(effects, values, seed):
@@ -31,17 +35,17 @@ def _record(effects, values, seed):
 
 
 @pytest.mark.slow
-def test_discover_names_hidden_yaw_friction_and_closes_the_gap(tmp_path):
-    rec = _record(["yaw:coulomb_friction"], {"F_c_yaw": HIDDEN_F_C}, seed=11)
+def test_discover_names_a_hidden_yaw_offset_and_closes_the_gap(tmp_path):
+    rec = _record(["yaw:torque_offset"], {"T_0_yaw": HIDDEN_T_0}, seed=11)
     res = discover(rec, tmp_path, train=(0.0, SPLIT), test=(SPLIT, SECONDS), budget=TINY,
                    candidates=CANDIDATES, scheduler="serial", log=lambda m: None)  # fmt: skip
     assert tuple(res) == DISCOVERY_KEYS
     assert json.loads((tmp_path / "discovery.json").read_text()) == res
-    assert (res["effect"], res["axis"]) == ("coulomb_friction", "yaw")
-    lo, hi = res["parameters"]["F_c"]["ci95"]
-    assert lo <= HIDDEN_F_C <= hi
+    assert (res["effect"], res["axis"]) == ("torque_offset", "yaw")
+    lo, hi = res["parameters"]["T_0"]["ci95"]
+    assert lo <= HIDDEN_T_0 <= hi
     assert res["gap_after"]["test"]["rmse_psi"] < res["gap_before"]["test"]["rmse_psi"]
-    assert res["candidates"][0]["effect"] == "coulomb_friction" and res["candidates"][0]["score_se"] > 0
+    assert res["candidates"][0]["effect"] == "torque_offset" and res["candidates"][0]["score_se"] > 0
     for name in ("report.md", "bands_before.png", "bands_after.png", "residuals.png", "candidates.png",
                  "refit/posterior.nc"):  # fmt: skip
         assert (tmp_path / name).stat().st_size > 0, name

@@ -49,7 +49,8 @@ def _posterior(record, model, train, test, out, cost, seed):
     """NUTS posterior of ``model``: ``(gap masks input, idata, summary)``."""
     idata, summary = sample_posterior(record, out, model=model, train=train, test=test, sampler="nuts",
                                       error="iid", chains=cost.chains, warmup=cost.warmup,
-                                      draws=cost.samples, seed=seed, progress=False)  # fmt: skip
+                                      draws=cost.samples, seed=seed, progress=False,
+                                      max_tree_depth=cost.max_tree_depth)  # fmt: skip
     pp = idata.posterior_predictive
     y_sim = np.asarray(pp["y_sim"]).reshape((-1,) + pp["y_sim"].shape[2:])
     y_pred = np.asarray(pp["y_pred"]).reshape((-1,) + pp["y_pred"].shape[2:])
@@ -112,9 +113,9 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
                                                      out / "refit", cost, seed)  # fmt: skip
         gap_after = _gap(as_, ap, ay, _masks(len(at), _windows_from(at, train, test), split))
         params = parameter_summary(idata, idata_model(idata))
-        converged = summary.get("converged")
+        health = summary.get("health", {"ok": summary.get("converged"), "warnings": []})
     else:
-        as_, ap, ay, at, gap_after, params, converged = bs, bp, by, bt, gap_before, {}, None
+        as_, ap, ay, at, gap_after, params, health = bs, bp, by, bt, gap_before, {}, None
     first = added[0] if added else None
     result = {
         "effect": first.split(":")[1] if first else "none",
@@ -142,7 +143,7 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
     label = budget if isinstance(budget, str) else "custom"
     whole = {"before": gap_metrics(bs, bp, by), "after": gap_metrics(as_, ap, ay)}
     atomic_write_text(out / "report.md", _report(result, where, ranking, steps, base, label, fit_window,
-                                                 score_window, n_scored, converged, whole,
+                                                 score_window, n_scored, health, whole,
                                                  time.perf_counter() - t_start, record))  # fmt: skip
     say(f"done: {result['decision']}")
     return result
@@ -213,7 +214,7 @@ def _fmt_gap(g: dict) -> str:
     return " | ".join(f"{g[k]:.3f}" if "rmse" in k or k == "V" else f"{g[k]:.0%}" for k in GAP_KEYS)
 
 
-def _report(result, where, ranking, steps, base, budget, fit_window, score_window, n_scored, converged,
+def _report(result, where, ranking, steps, base, budget, fit_window, score_window, n_scored, health,
             whole, seconds, record) -> str:  # fmt: skip
     lines = [f"# Discovery report: {pathlib.Path(str(record.source)).name}", "",
              f"**Decision.** {result['decision']}", "",
@@ -272,7 +273,8 @@ def _report(result, where, ranking, steps, base, budget, fit_window, score_windo
             for name, p in a["parameters"].items():
                 lines.append(f"- {a['effect']} ({a['axis']}): {name} = {p['mean']:.4g} "
                              f"[{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}] {p['unit']}")  # fmt: skip
-        if converged is False:
-            lines += ["", "**Warning:** the NUTS refit did not converge (see `refit/summary.json`)."]
+        if health is not None and not health.get("ok", True):
+            lines += ["", "**Warning: the NUTS refit failed its health checks** (`refit/summary.json`):", ""]
+            lines += [f"- {w}" for w in health.get("warnings", [])]
     lines += ["", "Figures: `residuals.png`, `candidates.png`, `bands_before.png`, `bands_after.png`.", ""]
     return "\n".join(lines)

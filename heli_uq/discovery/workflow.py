@@ -14,11 +14,11 @@ Steps (the module of each in parentheses):
 4. **Name** (:mod:`~heli_uq.discovery.candidates`, :mod:`~heli_uq.discovery.score`):
    every candidate effect (each effect of the vocabulary on each axis, not yet in the
    model) is added to the current model, fitted and scored on held-out blocks; with two
-   or more effects still allowed, pairs of the best :attr:`Budget.pair_top` singles too
-   (single effects can be weak alone and strong together, as friction and a torque offset
-   on the rig's yaw).  The fits are independent Dask tasks
-   (:func:`heli_uq.executor.run_tasks`) and are saved as they finish, so a rerun with the
-   same output directory reuses them.
+   or more effects still allowed, pairs too, of the :attr:`Budget.pair_top` singles that
+   fit the fitting window best and the best single by held-out score (single effects can
+   be weak alone and strong together, as friction and a torque offset on the rig's yaw).
+   The fits are independent Dask tasks (:func:`heli_uq.executor.run_tasks`) and are saved
+   as they finish, so a rerun with the same output directory reuses them.
 5. **Decide.**  The best model beats the current one if its score difference exceeds both
    :data:`~heli_uq.discovery.score.MARGIN_SE` standard errors and
    :data:`~heli_uq.discovery.score.MARGIN_PER_SAMPLE` nats per held-out
@@ -70,7 +70,9 @@ class Budget:
     probe and implied values); ``draws``: Laplace draws per candidate; ``pair_top``: how
     many of the best singles are paired; ``chains, warmup, samples``: the NUTS refit;
     ``nuts_before``: the base model gets a NUTS posterior too (else its Laplace
-    approximation is *before*); ``newton_steps``: of each MAP polish.
+    approximation is *before*); ``newton_steps``: of each MAP polish; ``max_tree_depth``:
+    of the NUTS refit (a stiff friction model can otherwise spend 2^8 leapfrog steps per
+    draw; the health checks report saturation).
     """
 
     n_starts: int
@@ -82,10 +84,11 @@ class Budget:
     samples: int
     nuts_before: bool = False
     newton_steps: int = 4
+    max_tree_depth: int = 8
 
 
 BUDGETS = {"quick": Budget(n_starts=2, cold_starts=0, draws=64, pair_top=3, chains=2, warmup=250,
-                           samples=250),
+                           samples=250, max_tree_depth=6),
            "full": Budget(n_starts=4, cold_starts=1, draws=200, pair_top=4, chains=4, warmup=1000,
                           samples=1000,
                           nuts_before=True, newton_steps=10)}
@@ -309,7 +312,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         rows = _rank(results, current_res, n_scored)
         room = max_effects - (len(current) - len(base_effects))
         if room >= 2 and cost.pair_top >= 2:
-            top = [r["effect"] for r in rows if r["score"] is not None][: cost.pair_top]
+            top = _pair_members(rows, cost.pair_top)
             pairs = {}
             for a, b in itertools.combinations(top, 2):
                 ea, eb = a.split("+")[-1], b.split("+")[-1]
@@ -346,6 +349,18 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         score_window=score_w,
         n_scored=n_scored, say=say, t_start=t_start)  # fmt: skip
     return result
+
+
+def _pair_members(rows: list[dict], n: int) -> list[str]:
+    """Singles to pair: the ``n`` that fit the fitting window best (lowest V of the mean
+    simulation; an effect can help in-sample and extrapolate badly alone, yet be half of
+    a good pair, as friction on the rig's yaw) and the best by held-out score."""
+    ok = [r for r in rows if r["score"] is not None]
+    by_fit = sorted(ok, key=lambda r: r["fit"]["V"])[:n]
+    members = [r["effect"] for r in by_fit]
+    if ok and ok[0]["effect"] not in members:
+        members.append(ok[0]["effect"])
+    return members
 
 
 def _blocks_of(fitted) -> list[tuple[int, int]]:

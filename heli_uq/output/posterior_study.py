@@ -81,7 +81,8 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
                      test=None, sampler="nuts", error="ar1", priors=None, chains=4, warmup=1000,
                      draws=1000, seed=0, resume=False, progress=True, walkers=None,
                      ensembles=None, n_starts=4, adapt_mass_matrix=True,
-                     target_accept=TARGET_ACCEPT, substeps=None, log=None):  # fmt: skip
+                     target_accept=TARGET_ACCEPT, substeps=None, log=None,
+                     max_tree_depth=8):  # fmt: skip
     """Run the whole posterior study and write its files; returns ``(idata, summary)``.
 
     Parameters
@@ -96,7 +97,7 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
         ``emcee`` runs ``ensembles`` (default ``chains``) independent ensembles of
         ``walkers`` walkers for ``warmup + draws`` steps each and keeps the last ``draws``.
     priors : PriorSet, optional
-    adapt_mass_matrix, target_accept
+    adapt_mass_matrix, target_accept, max_tree_depth
         NUTS only, see :func:`heli_uq.inference.run_nuts`.
     substeps : int, optional
         RK4 substeps per sample (default: chosen from the model's stiffness).
@@ -133,7 +134,8 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     if sampler == "nuts":
         run = run_nuts(problem, out, chains=chains, warmup=warmup, draws=draws, seed=seed,
                        resume=resume, progress=progress, start=start,
-                       adapt_mass_matrix=adapt_mass_matrix, target_accept=target_accept)  # fmt: skip
+                       adapt_mass_matrix=adapt_mass_matrix, target_accept=target_accept,
+                       max_tree_depth=max_tree_depth)  # fmt: skip
     else:
         run = run_emcee(problem, out, ensembles=ensembles or chains, walkers=walkers,
                         steps=warmup + draws, burn=warmup, seed=seed, resume=resume,

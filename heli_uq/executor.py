@@ -105,7 +105,7 @@ def run_tasks(fn: Callable, tasks: Mapping, *, scheduler: str | None = "local", 
                           "distributed.worker.daemon": False}):  # fmt: skip
         if scheduler in (None, "local"):
             cluster = LocalCluster(n_workers=workers or default_workers(len(keys)), threads_per_worker=1,
-                                   processes=True, dashboard_address=None)  # fmt: skip
+                                   processes=True, dashboard_address=":0")  # fmt: skip
             client = Client(cluster)
         else:
             cluster, client = None, Client(scheduler)

@@ -25,7 +25,7 @@ SECONDS, SPLIT = 30.0, 21.0
 #: Hidden yaw torque offset [N m] (a fit of the rig's yaw with friction gives -0.07).  Not
 #: friction: the NUTS refit of a stiff friction model takes minutes; the confusion study
 #: covers every effect (studies/discovery_confusion.py).
-HIDDEN_T_0 = -0.01
+HIDDEN_T_0 = -0.04
 
 
 def _record(effects, values, seed):

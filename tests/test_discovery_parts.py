@@ -67,9 +67,10 @@ def test_compare_and_margin():
     assert not passes(base + 0.5 * need / 5, base, n)  # below the per-sample margin
     mixed = np.array([10.0, -9.0, 10.0, -9.0, 10.0]) * need  # big total, inconsistent blocks
     assert not passes(mixed, base, n)
-    growing = np.array([0.1, 1.0, 10.0, 100.0, 1000.0]) * need  # drift: large SE, all positive
-    assert compare(growing, base)[0] < MARGIN_SE * compare(growing, base)[1]
+    growing = np.array([-0.1, 1.0, 10.0, 100.0, 1000.0]) * need / 5  # drift: large SE, no block
+    assert compare(growing, base)[0] < MARGIN_SE * compare(growing, base)[1]  # clearly worse
     assert passes(growing, base, n)
+    assert not passes(growing - [2 * need / 5, 0, 0, 0, 0], base, n)  # one block clearly worse
 
 
 #: Sampling tolerance of a coverage estimated from 2000 points (about 4.5 standard errors).

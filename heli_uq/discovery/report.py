@@ -45,12 +45,14 @@ def _masks(n: int, windows: dict, split: bool) -> dict:
     return out
 
 
-def _posterior(record, model, train, test, out, cost, seed):
-    """NUTS posterior of ``model``: ``(gap masks input, idata, summary)``."""
+def _posterior(record, model, train, test, out, cost, seed, guess):
+    """NUTS posterior of ``model`` (MAP warm-started from ``guess``, the model's fit on the
+    fitting window): ``(idata, summary, y_sim, y_pred, y_obs, t)``."""
     idata, summary = sample_posterior(record, out, model=model, train=train, test=test, sampler="nuts",
                                       error="iid", chains=cost.chains, warmup=cost.warmup,
                                       draws=cost.samples, seed=seed, progress=False,
-                                      max_tree_depth=cost.max_tree_depth)  # fmt: skip
+                                      max_tree_depth=cost.max_tree_depth, n_starts=cost.n_starts,
+                                      guesses=(guess,))  # fmt: skip
     pp = idata.posterior_predictive
     y_sim = np.asarray(pp["y_sim"]).reshape((-1,) + pp["y_sim"].shape[2:])
     y_pred = np.asarray(pp["y_pred"]).reshape((-1,) + pp["y_pred"].shape[2:])
@@ -86,8 +88,8 @@ def _owner(name: str, kind: str, axis: str) -> bool:
 
 
 def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_fit, where, ranking,
-                  rows, steps, cost, budget, seed, full, refit, fit_window, score_window, n_scored, say,
-                  t_start) -> dict:  # fmt: skip
+                  rows, steps, cost, budget, seed, full, refit, chosen_map, fit_window, score_window,
+                  n_scored, say, t_start) -> dict:  # fmt: skip
     """Refit, compare and write every output (module docstring); returns ``discovery.json``."""
     train, test = refit
     split = test is not None
@@ -95,7 +97,8 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
     # before
     if full:
         say("NUTS posterior of the base model (before)")
-        _, _, bs, bp, by, bt = _posterior(record, base_model, train, test, out / "before", cost, seed)
+        _, _, bs, bp, by, bt = _posterior(record, base_model, train, test, out / "before", cost, seed,
+                                          base_fit.params)  # fmt: skip
         problem_windows = _windows_from(bt, train, test)
     else:
         fitted = base_fit if split else fitted_predictive(
@@ -110,7 +113,7 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
     if added:
         say(f"NUTS posterior of the chosen model ({build_model(effects).label})")
         idata, summary, as_, ap, ay, at = _posterior(record, build_model(effects), train, test,
-                                                     out / "refit", cost, seed)  # fmt: skip
+                                                     out / "refit", cost, seed, chosen_map)  # fmt: skip
         gap_after = _gap(as_, ap, ay, _masks(len(at), _windows_from(at, train, test), split))
         params = parameter_summary(idata, idata_model(idata))
         health = summary.get("health", {"ok": summary.get("converged"), "warnings": []})
@@ -188,22 +191,35 @@ def _decision(added, rows, steps, before, after) -> str:
 
 
 def _candidates_figure(cands: list[dict], n_scored: int):
-    ok = [c for c in cands if c.get("score") is not None]
-    fig = new_figure((10.0, 0.9 + 0.32 * max(len(ok), 1)))
+    """Held-out score per sample of each candidate against the current model, ± 2 SE;
+    scores far below zero are cut at the left edge (hatched, value written)."""
+    ok = [c for c in cands if c.get("score") is not None and np.isfinite(c["score"])]
+    fig = new_figure((10.0, 1.2 + 0.3 * max(len(ok), 1)))
     ax = fig.add_subplot(1, 1, 1)
     labels = [f"step {c['step']}: {c['effect']} ({c['axis']})" for c in ok][::-1]
-    scores = np.asarray([c["score"] for c in ok][::-1])
-    ses = np.asarray([c["score_se"] for c in ok][::-1])
-    colors = ["C2" if c.get("passes") else "0.6" for c in ok][::-1]
+    x = np.asarray([c["score"] for c in ok][::-1]) / n_scored
+    err = 2 * np.asarray([c["score_se"] for c in ok][::-1]) / n_scored
+    right = max(float(np.max(x + err, initial=0.0)), 5 * MARGIN_PER_SAMPLE)
+    left = -max(right, 1.0)
+    shown = np.clip(x, left, None)
     y = np.arange(len(ok))
-    ax.barh(y, scores, xerr=2 * ses, color=colors, ecolor="k", capsize=2)
+    colors = ["C2" if c.get("passes") else "0.6" for c in ok][::-1]
+    bars = ax.barh(y, shown, color=colors)
+    ax.errorbar(np.clip(x, left, None), y, xerr=np.where(x > left, err, 0), fmt="none", ecolor="k",
+                capsize=2)  # fmt: skip
+    for bar, value, cut in zip(bars, x, x < left):
+        if cut:
+            bar.set_hatch("//")
+            ax.text(left, bar.get_y() + bar.get_height() / 2, f" {value:.3g}", va="center",
+                    fontsize="x-small")  # fmt: skip
     ax.set_yticks(y, labels, fontsize="small")
     ax.axvline(0, color="k", lw=0.8)
-    ax.axvline(MARGIN_PER_SAMPLE * n_scored, color="C3", ls="--", lw=0.8,
+    ax.axvline(MARGIN_PER_SAMPLE, color="C3", ls="--", lw=0.8,
                label=f"margin {MARGIN_PER_SAMPLE} nats/sample")  # fmt: skip
-    ax.set_xscale("symlog", linthresh=max(10.0, MARGIN_PER_SAMPLE * n_scored))
-    ax.set_xlabel("held-out log predictive density minus the current model's [nats] (bars: ± 2 SE)")
-    ax.set_title("Candidate effects (green: passes the margin)", loc="left")
+    ax.set_xlim(left * 1.05, right * 1.05)
+    ax.set_xlabel("held-out log predictive density minus the current model's, per sample [nats] "
+                  "(± 2 SE)")  # fmt: skip
+    ax.set_title("Candidate effects (green: passes the margin; hatched: cut at the left edge)", loc="left")
     ax.legend(loc="lower right", fontsize="small")
     ax.grid(True, axis="x", alpha=0.4)
     fig.tight_layout()

@@ -102,15 +102,18 @@ def passes(scores, base, n_scored: int) -> bool:
     """Whether block ``scores`` beat ``base`` over ``n_scored`` held-out samples.
 
     The difference must exceed :data:`MARGIN_PER_SAMPLE` nats per sample, and be
-    significant: more than :data:`MARGIN_SE` standard errors, *or* every block favouring
-    the candidate (a sign test, level ``2^-B`` for ``B >= MIN_BLOCKS`` blocks).  The sign
-    test matters when a model's error grows over the window (a drifting simulation):
-    then the block differences grow too, and their spread inflates the standard error
+    significant: more than :data:`MARGIN_SE` standard errors, *or* no block favouring the
+    other model by more than the per-sample margin (``B >= MIN_BLOCKS`` blocks).  The
+    second form matters when a model's error grows over the window (a drifting
+    simulation): the block differences then grow from about 0 right after the fitting
+    window to large values at its end, and their spread inflates the standard error
     although every block tells the same story.
     """
     diff, se = compare(scores, base)
     d = np.asarray(scores, dtype=float) - np.asarray(base, dtype=float)
-    significant = diff > MARGIN_SE * se or (d.size >= MIN_BLOCKS and bool(np.all(d > 0)))
+    tolerance = MARGIN_PER_SAMPLE * n_scored / max(d.size, 1)  # per block, of mean length
+    consistent = d.size >= MIN_BLOCKS and bool(np.all(d > -tolerance))
+    significant = diff > MARGIN_SE * se or consistent
     return bool(np.isfinite(diff) and diff > MARGIN_PER_SAMPLE * n_scored and significant)
 
 

@@ -345,7 +345,8 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     result = write_outputs(
         out, record=record, base_effects=base_effects, added=added, base=base, base_fit=base_fit,
         where=where, ranking=ranking, rows=all_rows, steps=steps, cost=cost, budget=budget,
-        seed=seed, full=cost.nuts_before, refit=(refit_train, refit_test), fit_window=fit_w,
+        seed=seed, full=cost.nuts_before, refit=(refit_train, refit_test), chosen_map=current_map,
+        fit_window=fit_w,
         score_window=score_w,
         n_scored=n_scored, say=say, t_start=t_start)  # fmt: skip
     return result

@@ -82,7 +82,7 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
                      draws=1000, seed=0, resume=False, progress=True, walkers=None,
                      ensembles=None, n_starts=4, adapt_mass_matrix=True,
                      target_accept=TARGET_ACCEPT, substeps=None, log=None,
-                     max_tree_depth=8):  # fmt: skip
+                     max_tree_depth=8, guesses=()):  # fmt: skip
     """Run the whole posterior study and write its files; returns ``(idata, summary)``.
 
     Parameters
@@ -101,6 +101,9 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
         NUTS only, see :func:`heli_uq.inference.run_nuts`.
     substeps : int, optional
         RK4 substeps per sample (default: chosen from the model's stiffness).
+    guesses : sequence of dict, optional
+        MAP starts tried first (physical parameters and initial state, e.g. a fit of the
+        same model on a nearby window), before the model's own start values.
     log : callable, optional
         Called with one line per stage (``"[  12 s] MAP: ..."``, elapsed time first).
 
@@ -126,7 +129,8 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     if not resume:
         stage(f"MAP: {n_starts} starts (least squares, then Newton on the log posterior; "
               "the first compiles the model)")  # fmt: skip
-        start = prepare_start(problem, n_starts=n_starts, seed=seed, log=stage)
+        start = prepare_start(problem, n_starts=max(n_starts, len(guesses)), seed=seed, log=stage,
+                              guesses=guesses)  # fmt: skip
         stage(f"MAP done: -log p = {start.map_value:.6g}, Newton decrement "
               f"{start.map_decrement:.2g}, {start.problem.substeps} substeps")  # fmt: skip
     stage(f"{sampler}: {chains} chains x ({warmup} + {draws})"

@@ -139,7 +139,9 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
                            title=f"Before: {base_model.label} ({'NUTS' if full else 'Laplace'})"
                                  f" - {title}"), out / "bands_before.png")  # fmt: skip
     masks_after = _masks(len(at), _windows_from(at, train, test), split) if added else masks_before
+    flags = ", ".join((health or {}).get("flags", [])) if added else ""
     save_figure(plot_bands(at, ap, ay, **_plot_masks(masks_after, split), coverage=_coverage(gap_after),
+                           health=flags,
                            title=f"After: {build_model(effects).label} (NUTS) - {title}"),
                 out / "bands_after.png")  # fmt: skip
     save_figure(_candidates_figure(result["candidates"], n_scored), out / "candidates.png")

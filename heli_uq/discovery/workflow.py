@@ -46,7 +46,7 @@ from heli_uq.discovery.candidates import FitTask, fit_and_score, fitted_predicti
 from heli_uq.discovery.implied import base_features, effect_features, implied_torque
 from heli_uq.discovery.locate import locate
 from heli_uq.discovery.report import write_outputs
-from heli_uq.discovery.score import GAP_KEYS, compare, gap_metrics, passes
+from heli_uq.discovery.score import compare, passes
 from heli_uq.discovery.sindy import rank_effects
 from heli_uq.errors import ParameterError
 from heli_uq.executor import TaskFailed, run_tasks
@@ -386,15 +386,3 @@ def _choose(rows: list[dict], results: dict, n_scored: int):
     better = passes(results[best_pair["effect"]]["block_scores"],
                     results[best_single["effect"]]["block_scores"], n_scored)  # fmt: skip
     return best_pair if better else best_single
-
-
-def gap_record(metrics: dict) -> dict:
-    """The five gap numbers (``GAP_KEYS``) of a metrics dict."""
-    return {k: float(metrics[k]) for k in GAP_KEYS}
-
-
-def laplace_gap(fitted, windows: dict) -> dict:
-    """Gap metrics of a Laplace predictive on each window ``{name: (start, stop)}``."""
-    y = fitted.start.problem.y
-    return {w: gap_metrics(fitted.y_sim[:, a:b], fitted.y_pred[:, a:b], y[a:b])
-            for w, (a, b) in windows.items()}  # fmt: skip

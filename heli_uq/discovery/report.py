@@ -75,16 +75,10 @@ def _candidate_rows(rows: list[dict]) -> list[dict]:
 
 
 def _effect_parameters(summary_params: dict, effect: str) -> dict:
-    axis, kind = effect.split(":")
-    return {p["bare"]: {"mean": p["mean"], "ci95": p["ci95"], "unit": p["unit"]}
-            for name, p in summary_params.items() if name.endswith(f"_{axis}") and p.get("bare")
-            and _owner(name, kind, axis)}  # fmt: skip
-
-
-def _owner(name: str, kind: str, axis: str) -> bool:
-    from heli_uq.model import EFFECTS
-
-    return any(f"{p.name}_{axis}" == name for p in EFFECTS[kind](axis=axis)._declare())
+    """``{bare name: {mean, ci95, unit}}`` of the parameters of ``effect`` (``"axis:kind"``)."""
+    names = [par.name for par in build_model([effect]).effects[0].parameters()]
+    return {summary_params[n]["bare"]: {k: summary_params[n][k] for k in ("mean", "ci95", "unit")}
+            for n in names if n in summary_params}  # fmt: skip
 
 
 def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_fit, where, ranking,
@@ -114,11 +108,13 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
         say(f"NUTS posterior of the chosen model ({build_model(effects).label})")
         idata, summary, as_, ap, ay, at = _posterior(record, build_model(effects), train, test,
                                                      out / "refit", cost, seed, chosen_map)  # fmt: skip
-        gap_after = _gap(as_, ap, ay, _masks(len(at), _windows_from(at, train, test), split))
-        params = parameter_summary(idata, idata_model(idata))
+        masks_after = _masks(len(at), _windows_from(at, train, test), split)
+        gap_after = _gap(as_, ap, ay, masks_after)
+        params = parameter_summary(idata, build_model(effects))
         health = summary.get("health", {"ok": summary.get("converged"), "warnings": []})
     else:
         as_, ap, ay, at, gap_after, params, health = bs, bp, by, bt, gap_before, {}, None
+        masks_after = before_masks
     first = added[0] if added else None
     result = {
         "effect": first.split(":")[1] if first else "none",
@@ -132,13 +128,11 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
     }  # fmt: skip
     assert tuple(result) == DISCOVERY_KEYS
     atomic_write_text(out / "discovery.json", json.dumps(result, indent=1))
-    masks_before = before_masks
     title = f"{pathlib.Path(str(record.source)).name}"
-    save_figure(plot_bands(bt, bp, by, **_plot_masks(masks_before, split),
+    save_figure(plot_bands(bt, bp, by, **_plot_masks(before_masks, split),
                            coverage=_coverage(gap_before),
                            title=f"Before: {base_model.label} ({'NUTS' if full else 'Laplace'})"
                                  f" - {title}"), out / "bands_before.png")  # fmt: skip
-    masks_after = _masks(len(at), _windows_from(at, train, test), split) if added else masks_before
     flags = ", ".join((health or {}).get("flags", [])) if added else ""
     save_figure(plot_bands(at, ap, ay, **_plot_masks(masks_after, split), coverage=_coverage(gap_after),
                            health=flags,
@@ -152,12 +146,6 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
                                                  time.perf_counter() - t_start, record))  # fmt: skip
     say(f"done: {result['decision']}")
     return result
-
-
-def idata_model(idata):
-    from heli_uq.model import model_from_description
-
-    return model_from_description(idata.posterior.attrs["model"])
 
 
 def _windows_from(t, train, test) -> dict:

@@ -30,10 +30,11 @@ from numpyro.infer import NUTS
 
 from heli_uq.errors import ParameterError
 from heli_uq.inference.checkpoint import Checkpoint
-from heli_uq.inference.density import constrain_draws, log_density_setup
+from heli_uq.inference.density import constrain_draws, coordinate_names, log_density_setup
 from heli_uq.inference.interrupt import Interrupted, Progress, deferred_interrupt
 from heli_uq.inference.manifest import run_manifest
-from heli_uq.inference.start import Start, initial_draws, prepare_start, whitening
+from heli_uq.inference.start import Start, initial_draws, prepare_start
+from heli_uq.inference.whiten import SamplerMap, find_walls
 from heli_uq.io import require_memory
 from heli_uq.probability.problem import Problem
 
@@ -119,11 +120,11 @@ def _chain_functions(kernel, warmup: int, parallel: bool):
     return jax.jit(jax.vmap(init_one)), jax.jit(jax.vmap(block_one, in_axes=(0, None)))
 
 
-def _save_chunk(checkpoint: Checkpoint, index: int, pending: list, state, x_map, lower) -> dict:
-    """Write the draws of ``pending`` blocks (whitened ``w`` -> sampler coordinates ``x``)
-    with the state to continue from, as chunk ``index``; returns the record."""
+def _save_chunk(checkpoint: Checkpoint, index: int, pending: list, state, smap: SamplerMap) -> dict:
+    """Write the draws of ``pending`` blocks (``w`` -> sampler coordinates ``x``) with the
+    state to continue from, as chunk ``index``; returns the record."""
     w, *stats = (np.concatenate(parts, axis=1) for parts in zip(*pending, strict=True))
-    record = {"x": x_map + w @ lower.T, "stats": dict(zip(NUTS_EXTRA_FIELDS, stats, strict=True)),
+    record = {"x": smap.x(w), "stats": dict(zip(NUTS_EXTRA_FIELDS, stats, strict=True)),
               "state": jax.device_get(state)}  # fmt: skip
     checkpoint.save("nuts", index, record)
     return record
@@ -149,8 +150,12 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
 
     NUTS moves in ``w`` with ``x = x_map + L w`` (``x``: numpyro's unconstrained vector,
     ``L L^T``: the Laplace covariance), where the posterior is close to ``N(0, I)``; the
-    Jacobian of this map is constant, so the target is unchanged.  Warm-up adapts the
-    step size and a dense mass matrix *in w*, starting from the identity.
+    Jacobian of this map is constant, so the target is unchanged.  Coordinates whose
+    posterior has a one-sided exponential wall (a weakly identified positive parameter,
+    e.g. ``J_s``) get a ``log softplus`` map in addition, with its Jacobian
+    (:class:`~heli_uq.inference.whiten.SamplerMap`; ``walls`` in the run's info names
+    them): on the rig record this lets the step size double.  Warm-up adapts the step
+    size and a dense mass matrix *in w*, starting from the identity.
 
     Why whiten instead of passing the Laplace covariance as the initial mass matrix:
     numpyro regularises every dense estimate towards ``1e-3 * I`` in absolute units of
@@ -210,16 +215,17 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     if info is None:
         start = prepare_start(problem, seed=seed) if start is None else start
         info = _start_info(start)
+        info["walls"] = list(find_walls(start.density.potential_jit, info["x_map"], info["covariance"]))
         checkpoint.start_new(info, manifest)
         density = start.density
     else:
         density = log_density_setup(problem.with_substeps(info["substeps"]), seed=seed)
     problem = density.problem
-    x_map, lower = whitening(info)
-    x_map_j, lower_j = jnp.asarray(x_map), jnp.asarray(lower)
+    smap = SamplerMap.from_info(info)
 
     def potential(w):
-        return density.potential(x_map_j + lower_j @ w)
+        x, log_det = smap.x_and_log_det(w)
+        return density.potential(x) - log_det
 
     kernel = NUTS(potential_fn=potential, dense_mass=True, max_tree_depth=max_tree_depth,
                   target_accept_prob=target_accept, adapt_mass_matrix=adapt_mass_matrix)
@@ -236,7 +242,7 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     else:
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1,)))
         batched = jax.jit(jax.vmap(potential))
-        w0 = initial_draws(lambda w: batched(jnp.asarray(w)), chains, x_map.size, rng,
+        w0 = initial_draws(lambda w: batched(jnp.asarray(w)), chains, smap.x_map.size, rng,
                            on_failure="map")  # fmt: skip
         keys = jax.random.split(jax.random.PRNGKey(seed), chains)
         state, it = init(keys, jnp.asarray(w0)), 0
@@ -263,12 +269,11 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
             bar.update(_progress_text(it, warmup, draws, chains, pending, records,
                                       time.perf_counter() - t_loop))  # fmt: skip
             if it == limit and pending:
-                records.append(_save_chunk(checkpoint, len(records), pending, state, x_map, lower))
+                records.append(_save_chunk(checkpoint, len(records), pending, state, smap))
                 done, pending = done + records[-1]["x"].shape[1], []
             if flag.requested and it < total:
                 if pending:
-                    records.append(_save_chunk(checkpoint, len(records), pending, state, x_map,
-                                               lower))  # fmt: skip
+                    records.append(_save_chunk(checkpoint, len(records), pending, state, smap))
                     done = done + records[-1]["x"].shape[1]
                 if it <= warmup:
                     checkpoint.save("nuts_warmup", 0, {"state": state, "iteration": it})
@@ -290,6 +295,7 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     out_info.update(sampler="nuts", chains=chains, warmup=warmup, draws=draws, seed=seed,
                     chain_method=method, warmup_seconds=warm_seconds,
                     coordinates="laplace_whitened",
+                    wall_coordinates=[coordinate_names(density)[i] for i in smap.walls],
                     step_size=np.asarray(state.adapt_state.step_size).tolist(),
                     target_accept=target_accept, max_tree_depth=max_tree_depth,
                     wall_seconds=time.perf_counter() - t_start)  # fmt: skip

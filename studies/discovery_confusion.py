@@ -76,7 +76,7 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
                        seed=seed, scheduler=args.scheduler, log=lambda m: None)  # fmt: skip
     named = "none" if res["effect"] == "none" else f"{res['axis']}:{res['effect']}"
     covered = {}
-    if named == case:
+    if named == case and model.effects:
         term = model.effects[0]
         for p in term.parameters():
             ci = res["parameters"][p.bare]["ci95"]

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import logsumexp
 
-from heli_uq.probability import loss_v
+from heli_uq.output import predictive_metrics
 
 __all__ = ["input_blocks", "block_scores", "compare", "passes", "gap_metrics", "MIN_BLOCK_S", "MIN_BLOCKS",
            "GAP_KEYS", "MARGIN_SE", "MARGIN_PER_SAMPLE"]  # fmt: skip
@@ -38,7 +38,7 @@ MIN_BLOCKS = 4
 #: A model beats another if its score difference exceeds this many standard errors ...
 MARGIN_SE = 2.0
 #: ... and this many nats per held-out sample (calibrated on records without a hidden
-#: effect: ``studies/discovery_calibration.py``).
+#: effect: ``studies/discovery_confusion.py``).
 MARGIN_PER_SAMPLE = 0.02
 #: Keys of a gap-metrics record (``discovery.json``).
 GAP_KEYS = ("rmse_theta", "rmse_psi", "V", "coverage90_theta", "coverage90_psi")
@@ -119,13 +119,8 @@ def passes(scores, base, n_scored: int) -> bool:
 
 def gap_metrics(y_sim: np.ndarray, y_pred: np.ndarray, y_obs: np.ndarray) -> dict:
     """``{rmse_theta, rmse_psi, V, coverage90_theta, coverage90_psi}`` of predictive draws
-    ``y_sim`` (S, N, 2) (simulations) and ``y_pred`` (S, N, 2) (with errors) on ``y_obs``."""
-    y_obs = np.asarray(y_obs, dtype=float)
-    mean = np.nanmean(np.asarray(y_sim, dtype=float), axis=0)
-    lo, hi = np.nanquantile(np.asarray(y_pred, dtype=float), [0.05, 0.95], axis=0)
-    inside = (y_obs >= lo) & (y_obs <= hi)
-    rmse = np.sqrt(np.mean((mean - y_obs) ** 2, axis=0))
-    return {"rmse_theta": float(rmse[0]), "rmse_psi": float(rmse[1]),
-            "V": float(loss_v(mean, y_obs)),
-            "coverage90_theta": float(inside[:, 0].mean()),
-            "coverage90_psi": float(inside[:, 1].mean())}  # fmt: skip
+    ``y_sim`` (S, N, 2) (simulations) and ``y_pred`` (S, N, 2) (with errors) on ``y_obs``
+    (:func:`heli_uq.output.predictive_metrics`, flattened)."""
+    m = predictive_metrics(y_sim, y_pred, y_obs)
+    return {"rmse_theta": m["rmse"]["theta"], "rmse_psi": m["rmse"]["psi"], "V": m["loss_v"],
+            "coverage90_theta": m["coverage90"]["theta"], "coverage90_psi": m["coverage90"]["psi"]}

@@ -23,7 +23,7 @@ Steps (the module of each in parentheses):
    :data:`~heli_uq.discovery.score.MARGIN_SE` standard errors and
    :data:`~heli_uq.discovery.score.MARGIN_PER_SAMPLE` nats per held-out
    sample (calibrated on records without a hidden effect,
-   ``studies/discovery_calibration.py``).  Among models that pass, one more effect must
+   ``studies/discovery_confusion.py``).  Among models that pass, one more effect must
    again pass the margin against the smaller model (parsimony).  With ``max_effects > 1``
    the step repeats from the chosen model until nothing passes.
 6. **Refit** the chosen model with NUTS (:func:`heli_uq.output.sample_posterior`) and

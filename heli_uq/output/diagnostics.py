@@ -20,7 +20,8 @@ import numpy as np
 from heli_uq.probability.likelihood import loss_v
 from heli_uq.simulation.physical import unphysical_draws as _unphysical
 
-__all__ = ["RHAT_MAX", "ESS_MIN", "BFMI_MIN", "convergence", "predictive_checks", "summarize",
+__all__ = ["RHAT_MAX", "ESS_MIN", "BFMI_MIN", "convergence", "predictive_metrics", "predictive_checks",
+           "summarize",
            "unphysical_draws", "summary_table"]
 
 #: Posterior variables that are sampling internals, not physical quantities (left out of
@@ -109,24 +110,52 @@ def _windows(idata) -> dict[str, np.ndarray]:
     return out
 
 
+def predictive_metrics(y_sim: np.ndarray, y_pred: np.ndarray, y_obs: np.ndarray) -> dict:
+    """Fit and calibration of predictive draws on one window.
+
+    Parameters
+    ----------
+    y_sim : array, shape (S, N, 2)
+        Simulated angles (theta, psi) [rad] of S posterior draws (NaN where a solve failed).
+    y_pred : array, shape (S, N, 2)
+        The same with the error model's noise [rad].
+    y_obs : array, shape (N, 2)
+        Measured angles [rad].
+
+    Returns
+    -------
+    dict
+        ``rmse``, ``coverage90``, ``coverage50`` (each ``{theta, psi}``): RMSE [rad] of the
+        mean simulation and the fraction of ``y_obs`` inside the central 90 % / 50 %
+        predictive band; ``loss_v`` [rad^2]: the paper's loss of the mean simulation.
+    """
+    y_sim, y_pred = np.asarray(y_sim, dtype=float), np.asarray(y_pred, dtype=float)
+    y_obs = np.asarray(y_obs, dtype=float)
+    failed = np.isnan(y_pred).any()
+    q = (np.nanquantile if failed else np.quantile)(y_pred, [0.05, 0.25, 0.75, 0.95], axis=0)
+    mean_sim = (np.nanmean if failed else np.mean)(y_sim, axis=0)
+    out = {"rmse": {}, "coverage90": {}, "coverage50": {}}
+    for j, name in enumerate(("theta", "psi")):
+        obs = y_obs[:, j]
+        out["rmse"][name] = float(np.sqrt(np.mean((mean_sim[:, j] - obs) ** 2)))
+        out["coverage90"][name] = float(np.mean((obs >= q[0, :, j]) & (obs <= q[3, :, j])))
+        out["coverage50"][name] = float(np.mean((obs >= q[1, :, j]) & (obs <= q[2, :, j])))
+    out["loss_v"] = float(loss_v(mean_sim, y_obs))
+    return out
+
+
 def predictive_checks(idata) -> dict:
     """RMSE [rad] of the posterior-mean simulation, coverage of the 50 % and 90 % bands,
-    and the paper's loss V, per window (``train``, ``test``) and output."""
+    and the paper's loss V, per window (``train``, ``test``) and output
+    (:func:`predictive_metrics`)."""
     pp = idata.posterior_predictive
     y_pred = np.asarray(pp["y_pred"]).reshape((-1,) + pp["y_pred"].shape[2:])
     y_sim = np.asarray(pp["y_sim"]).reshape((-1,) + pp["y_sim"].shape[2:])
     y_obs = np.asarray(idata.constant_data["y_obs"])
-    q = np.quantile(y_pred, [0.05, 0.25, 0.75, 0.95], axis=0)
-    mean_sim = y_sim.mean(axis=0)
     out = {}
     for window, mask in _windows(idata).items():
-        res = {"rmse": {}, "coverage90": {}, "coverage50": {}}
-        for j, name in enumerate(("theta", "psi")):
-            obs = y_obs[mask, j]
-            res["rmse"][name] = float(np.sqrt(np.mean((mean_sim[mask, j] - obs) ** 2)))
-            res["coverage90"][name] = float(np.mean((obs >= q[0, mask, j]) & (obs <= q[3, mask, j])))
-            res["coverage50"][name] = float(np.mean((obs >= q[1, mask, j]) & (obs <= q[2, mask, j])))
-        res["loss_v_posterior_mean_sim"] = float(loss_v(mean_sim[mask], y_obs[mask]))
+        res = predictive_metrics(y_sim[:, mask], y_pred[:, mask], y_obs[mask])
+        res["loss_v_posterior_mean_sim"] = res.pop("loss_v")
         res["loss_v_mean_over_draws"] = float(np.mean([loss_v(s[mask], y_obs[mask]) for s in y_sim]))
         res["n_samples"] = int(mask.sum())
         out[window] = res

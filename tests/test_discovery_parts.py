@@ -155,3 +155,35 @@ def test_run_tasks_reports_each_failure_and_finishes_the_rest(scheduler):
     assert out["a"] == 4 and out["c"] == 9
     assert isinstance(out["b"], TaskFailed) and "ValueError: negative input" in out["b"]["error"]
     assert sorted(seen) == ["a", "b", "c"]
+
+
+def test_tied_candidates_are_named_and_the_fitting_window_breaks_the_tie():
+    """Two effects that score alike on held-out blocks are reported as tied, and the one
+    with the larger (BIC-penalised) log posterior on the fitting window is chosen; an
+    effect the best beats by the margin is not tied."""
+    from heli_uq.discovery.workflow import _choose
+
+    n_scored, n_fit, blocks = 4000, 9000, 8
+    base = np.zeros(blocks)
+    per_block = 4 * MARGIN_PER_SAMPLE * n_scored / blocks  # all pass against the base
+    a = base + per_block + 1.0  # best on held-out, by 8 nats in all
+    b = base + per_block  # tied with a (8 nats << the margin)
+    c = base + per_block / 2  # a beats it by twice the margin; it still passes the base
+    params = {"p": 0.0, "q": 0.0}
+    results = {"yaw:x": {"block_scores": a, "map_value": -100.0, "map": {**params, "x": 1.0}},
+               "yaw:y": {"block_scores": b, "map_value": -104.0, "map": {**params, "y": 1.0}},
+               "yaw:z": {"block_scores": c, "map_value": -500.0, "map": {**params, "z": 1.0}}}  # fmt: skip
+    rows = []
+    for key, res in results.items():
+        diff, se = compare(res["block_scores"], base)
+        rows.append({"effect": key, "added": [key], "score": diff, "score_se": se,
+                     "passes": passes(res["block_scores"], base, n_scored)})  # fmt: skip
+    assert all(r["passes"] for r in rows)
+    choice = _choose(rows, results, n_scored, n_fit)
+    assert choice["effect"] == "yaw:y" and choice["chosen_by"] == "training fit"
+    assert [r["effect"] for r in rows if r.get("tied")] == ["yaw:x", "yaw:y"]
+    # one parameter more costs 0.5 log(n_fit) = 4.6 nats: the 4-nat lead is no longer enough
+    results["yaw:y"]["map"]["y2"] = 0.0
+    for r in rows:
+        r.pop("tied", None), r.pop("chosen_by", None)
+    assert _choose(rows, results, n_scored, n_fit)["effect"] == "yaw:x"

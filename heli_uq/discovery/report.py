@@ -67,7 +67,7 @@ def _candidate_rows(rows: list[dict]) -> list[dict]:
         axes = sorted({e.split(":")[0] for e in r["added"]})
         row = {"effect": "+".join(kinds), "axis": "+".join(axes), "score": r["score"],
                "score_se": r["score_se"], "step": r["step"], "model": r["effect"]}  # fmt: skip
-        for k in ("score_per_sample", "passes", "held_out", "fit", "seconds", "error"):
+        for k in ("score_per_sample", "passes", "tied", "chosen_by", "held_out", "fit", "seconds", "error"):
             if k in r:
                 row[k] = r[k]
         out.append(row)
@@ -174,10 +174,13 @@ def _decision(added, rows, steps, before, after) -> str:
                f"nats on held-out blocks") if best else ""  # fmt: skip
         return f"none: no candidate effect beats the base model by the calibrated margin{why}."
     names = " and ".join(f"{e.split(':')[1]} on {e.split(':')[0]}" for e in added)
+    tied = steps[0].get("tied") or []
+    tie = (f" (tied on held-out blocks with {', '.join(tied)}; the fitting window decided)"
+           if tied else "")  # fmt: skip
     return (f"Added {names}: held-out score +{steps[0]['score']:.0f} ± {steps[0]['score_se']:.0f} nats "
-            f"over the base at the first step; yaw RMSE on the {w} window {before[w]['rmse_psi']:.3f} -> "
-            f"{after[w]['rmse_psi']:.3f} rad, yaw 90 % coverage {before[w]['coverage90_psi']:.0%} -> "
-            f"{after[w]['coverage90_psi']:.0%}.")  # fmt: skip
+            f"over the base at the first step{tie}; yaw RMSE on the {w} window "
+            f"{before[w]['rmse_psi']:.3f} -> {after[w]['rmse_psi']:.3f} rad, yaw 90 % coverage "
+            f"{before[w]['coverage90_psi']:.0%} -> {after[w]['coverage90_psi']:.0%}.")  # fmt: skip
 
 
 def _candidates_figure(cands: list[dict], n_scored: int):
@@ -263,6 +266,10 @@ def _report(result, where, ranking, steps, base, budget, fit_window, score_windo
     lines += ["", "## 4. Steps", ""]
     for s in steps:
         what = ", ".join(s["added"]) if s["added"] else s.get("decision", "")
+        if s.get("tied"):
+            what += (f" (tied on held-out blocks with {', '.join(s['tied'])}: no rival beats the other "
+                     "by the margin; the fitting window's log posterior at the MAP, less a BIC "
+                     "penalty per parameter, decided)")  # fmt: skip
         lines.append(f"- step {s['step']}: {what}")
     lines += ["", "## 5. Before and after", "",
               "| window | model | RMSE pitch [rad] | RMSE yaw [rad] | V [rad^2] | 90 % pitch | 90 % yaw |",

@@ -23,7 +23,11 @@ Steps (the module of each in parentheses):
    :data:`~heli_uq.discovery.score.MARGIN_SE` standard errors and
    :data:`~heli_uq.discovery.score.MARGIN_PER_SAMPLE` nats per held-out
    sample (calibrated on records without a hidden effect,
-   ``studies/discovery_confusion.py``).  Among models that pass, one more effect must
+   ``studies/discovery_confusion.py``).  Single effects that the best one does not beat
+   by that margin are *tied* with it (effects can act alike on a record: a dead band
+   below every voltage used is a torque offset); the fitting window's log posterior at
+   the MAP with a BIC penalty per parameter breaks the tie, and the report names the
+   rivals.  Among models that pass, one more effect must
    again pass the margin against the smaller model (parsimony).  With ``max_effects > 1``
    the step repeats from the chosen model until nothing passes.
 6. **Refit** the chosen model with NUTS (:func:`heli_uq.output.sample_posterior`) and
@@ -286,6 +290,8 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     base = score_fitted(base_fit, base_task)
     c, d = base_fit.start.problem.windows()["test"]
     n_scored = d - c  # held-out samples (the blocks tile the window)
+    a, b = base_fit.start.problem.windows()["train"]
+    n_fit = b - a
     where = locate(base_fit, out)
     say(f"base model: held-out yaw RMSE {base['score']['rmse_psi']:.3f} rad, 90 % coverage "
         f"{base['score']['coverage90_psi']:.0%}; worst axis: {where['axis']}")  # fmt: skip
@@ -328,13 +334,14 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
             r["step"] = len(steps) + 1
             r["added"] = [e for e in r["effect"].split("+") if e not in current]
         all_rows += rows
-        choice = _choose(rows, results, n_scored)
+        choice = _choose(rows, results, n_scored, n_fit)
         if choice is None:
             steps.append({"step": len(steps) + 1, "added": [], "decision": "nothing passes the margin"})
             break
         added = choice["added"]
         steps.append({"step": len(steps) + 1, "added": added, "score": choice["score"],
-                      "score_se": choice["score_se"]})  # fmt: skip
+                      "score_se": choice["score_se"],
+                      "tied": [r["effect"] for r in rows if r.get("tied") and r is not choice]})  # fmt: skip
         say(f"step {len(steps)}: adding {', '.join(added)} (score +{choice['score']:.0f} ± "
             f"{choice['score_se']:.0f} nats)")  # fmt: skip
         current = current + added
@@ -365,12 +372,38 @@ def _pair_members(rows: list[dict], n: int) -> list[str]:
     return members
 
 
-def _choose(rows: list[dict], results: dict, n_scored: int):
+def _training_support(result: dict, n_fit: int) -> float:
+    """Log posterior at the MAP on the fitting window, less ``0.5 log(n_fit)`` per fitted
+    parameter (a BIC penalty) [nats]: the tie-break between held-out-equal candidates."""
+    return -float(result["map_value"]) - 0.5 * len(result["map"]) * np.log(n_fit)
+
+
+def _break_ties(best: dict, passing: list[dict], results: dict, n_scored: int, n_fit: int) -> dict:
+    """Among the passing rows that ``best`` does not beat by the margin (``passes``), the
+    one the fitting window supports most (:func:`_training_support`).  Every tied row
+    gets ``tied: True``; the chosen one ``chosen_by: "training fit"`` if it is not
+    ``best``.  Held-out blocks cannot separate effects that act alike on the record (a
+    dead band below every voltage used is a torque offset on the same motor's axes);
+    the fitting window is longer and breaks the tie, and the report names the rivals."""
+    tied = [r for r in passing if r is best or not passes(results[best["effect"]]["block_scores"],
+                                                          results[r["effect"]]["block_scores"], n_scored)]
+    if len(tied) == 1:
+        return best
+    for r in tied:
+        r["tied"] = True
+    chosen = max(tied, key=lambda r: _training_support(results[r["effect"]], n_fit))
+    if chosen is not best:
+        chosen["chosen_by"] = "training fit"
+    return chosen
+
+
+def _choose(rows: list[dict], results: dict, n_scored: int, n_fit: int):
     """The row to add (module docstring, step 5), or None."""
     passing = [r for r in rows if r.get("passes")]
     if not passing:
         return None
-    best_single = next((r for r in passing if len(r["added"]) == 1), None)
+    singles = [r for r in passing if len(r["added"]) == 1]
+    best_single = _break_ties(singles[0], singles, results, n_scored, n_fit) if singles else None
     best_pair = next((r for r in passing if len(r["added"]) == 2), None)
     if best_pair is None:
         return best_single

@@ -62,7 +62,8 @@ def convergence(idata) -> dict:
         "worst_rhat_variable": _worst(summ["r_hat"], max),
         "worst_ess_variable": _worst(summ["ess_bulk"], min),
     }
-    for key in ("map_seconds", "warmup_seconds", "map_decrement", "target_accept", "substeps"):
+    for key in ("map_seconds", "warmup_seconds", "map_decrement", "target_accept", "substeps",
+                "wall_coordinates"):
         if key in info:
             out[key] = info[key]
     stats = idata.sample_stats

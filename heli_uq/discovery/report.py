@@ -189,7 +189,12 @@ def _candidates_figure(cands: list[dict], n_scored: int):
     ok = [c for c in cands if c.get("score") is not None and np.isfinite(c["score"])]
     fig = new_figure((10.0, 1.2 + 0.3 * max(len(ok), 1)))
     ax = fig.add_subplot(1, 1, 1)
-    labels = [f"step {c['step']}: {c['effect']} ({c['axis']})" for c in ok][::-1]
+    def label(c):
+        tags = [t for t, on in (("tied", c.get("tied")), ("chosen by the fit window", c.get("chosen_by")))
+                if on]  # fmt: skip
+        return f"step {c['step']}: {c['effect']} ({c['axis']})" + (f" [{', '.join(tags)}]" if tags else "")
+
+    labels = [label(c) for c in ok][::-1]
     x = np.asarray([c["score"] for c in ok][::-1]) / n_scored
     err = 2 * np.asarray([c["score_se"] for c in ok][::-1]) / n_scored
     right = max(float(np.max(x + err, initial=0.0)), 5 * MARGIN_PER_SAMPLE)

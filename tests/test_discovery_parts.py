@@ -161,7 +161,7 @@ def test_tied_candidates_are_named_and_the_fitting_window_breaks_the_tie():
     """Two effects that score alike on held-out blocks are reported as tied, and the one
     with the larger (BIC-penalised) log posterior on the fitting window is chosen; an
     effect the best beats by the margin is not tied."""
-    from heli_uq.discovery.workflow import _choose
+    from heli_uq.discovery.decide import choose
 
     n_scored, n_fit, blocks = 4000, 9000, 8
     base = np.zeros(blocks)
@@ -179,11 +179,11 @@ def test_tied_candidates_are_named_and_the_fitting_window_breaks_the_tie():
         rows.append({"effect": key, "added": [key], "score": diff, "score_se": se,
                      "passes": passes(res["block_scores"], base, n_scored)})  # fmt: skip
     assert all(r["passes"] for r in rows)
-    choice = _choose(rows, results, n_scored, n_fit)
+    choice = choose(rows, results, n_scored, n_fit)
     assert choice["effect"] == "yaw:y" and choice["chosen_by"] == "training fit"
     assert [r["effect"] for r in rows if r.get("tied")] == ["yaw:x", "yaw:y"]
     # one parameter more costs 0.5 log(n_fit) = 4.6 nats: the 4-nat lead is no longer enough
     results["yaw:y"]["map"]["y2"] = 0.0
     for r in rows:
         r.pop("tied", None), r.pop("chosen_by", None)
-    assert _choose(rows, results, n_scored, n_fit)["effect"] == "yaw:x"
+    assert choose(rows, results, n_scored, n_fit)["effect"] == "yaw:x"

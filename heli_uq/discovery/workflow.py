@@ -19,8 +19,8 @@ Steps (the module of each in parentheses):
    be weak alone and strong together, as friction and a torque offset on the rig's yaw).
    The fits are independent Dask tasks (:func:`heli_uq.executor.run_tasks`) and are saved
    as they finish, so a rerun with the same output directory reuses them.
-5. **Decide.**  The best model beats the current one if its score difference exceeds both
-   :data:`~heli_uq.discovery.score.MARGIN_SE` standard errors and
+5. **Decide** (:mod:`~heli_uq.discovery.decide`).  The best model beats the current one
+   if its score difference exceeds both :data:`~heli_uq.discovery.score.MARGIN_SE` standard errors and
    :data:`~heli_uq.discovery.score.MARGIN_PER_SAMPLE` nats per held-out
    sample (calibrated on records without a hidden effect,
    ``studies/discovery_confusion.py``).  Single effects that the best one does not beat
@@ -47,10 +47,10 @@ import numpy as np
 
 from heli_uq.data import Experiment
 from heli_uq.discovery.candidates import FitTask, fit_and_score, fitted_predictive, score_fitted
+from heli_uq.discovery.decide import choose, pair_members, rank
 from heli_uq.discovery.implied import base_features, effect_features, implied_torque
 from heli_uq.discovery.locate import locate
 from heli_uq.discovery.report import write_outputs
-from heli_uq.discovery.score import compare, passes
 from heli_uq.discovery.sindy import rank_effects
 from heli_uq.errors import ParameterError
 from heli_uq.executor import TaskFailed, run_tasks
@@ -205,23 +205,6 @@ def _run_round(tasks: dict, store: _Store, record, scheduler, log) -> dict:
     return {k: dict(done.get(k) or fresh[k]) for k in tasks}
 
 
-def _rank(results: dict, reference: dict, n_scored: int) -> list[dict]:
-    """Candidates with their score difference to ``reference`` and its SE, best first."""
-    rows = []
-    for key, res in results.items():
-        if "error" in res:
-            rows.append({"effect": key, "score": None, "score_se": None, "error": res["error"]})
-            continue
-        diff, se = compare(res["block_scores"], reference["block_scores"])
-        rows.append({"effect": key, "score": diff, "score_se": se,
-                     "score_per_sample": diff / n_scored,
-                     "passes": passes(res["block_scores"], reference["block_scores"], n_scored),
-                     "held_out": res["score"], "fit": res["fit"], "map_value": res["map_value"],
-                     "seconds": res["seconds"]})  # fmt: skip
-    rows.sort(key=lambda r: -np.inf if r["score"] is None else -r["score"])
-    return rows
-
-
 def discover(record: Experiment, out_dir, *, window=None, train=None, test=None, base_effects=(),
              budget="quick", max_effects: int = 1, candidates=None, seed: int = 0,
              scheduler="local", log=print) -> dict:  # fmt: skip
@@ -316,10 +299,10 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
             singles[_key(current + [e])] = task(current + [e], _guesses(current_map, current + [e],
                                                                         implied.get(e, {})))  # fmt: skip
         results = _run_round(singles, store, record, scheduler, say)
-        rows = _rank(results, current_res, n_scored)
+        rows = rank(results, current_res, n_scored)
         room = max_effects - (len(current) - len(base_effects))
         if room >= 2 and cost.pair_top >= 2:
-            top = _pair_members(rows, cost.pair_top)
+            top = pair_members(rows, cost.pair_top)
             pairs = {}
             for a, b in itertools.combinations(top, 2):
                 ea, eb = a.split("+")[-1], b.split("+")[-1]
@@ -329,12 +312,12 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
                 pairs[_key(effects)] = task(effects, (guess,) + _guesses(current_map, effects, {}))
             pair_results = _run_round(pairs, store, record, scheduler, say)
             results.update(pair_results)
-            rows = _rank(results, current_res, n_scored)
+            rows = rank(results, current_res, n_scored)
         for r in rows:
             r["step"] = len(steps) + 1
             r["added"] = [e for e in r["effect"].split("+") if e not in current]
         all_rows += rows
-        choice = _choose(rows, results, n_scored, n_fit)
+        choice = choose(rows, results, n_scored, n_fit)
         if choice is None:
             steps.append({"step": len(steps) + 1, "added": [], "decision": "nothing passes the margin"})
             break
@@ -358,58 +341,3 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         score_window=score_w,
         n_scored=n_scored, say=say, t_start=t_start)  # fmt: skip
     return result
-
-
-def _pair_members(rows: list[dict], n: int) -> list[str]:
-    """Singles to pair: the ``n`` that fit the fitting window best (lowest V of the mean
-    simulation; an effect can help in-sample and extrapolate badly alone, yet be half of
-    a good pair, as friction on the rig's yaw) and the best by held-out score."""
-    ok = [r for r in rows if r["score"] is not None]
-    by_fit = sorted(ok, key=lambda r: r["fit"]["V"])[:n]
-    members = [r["effect"] for r in by_fit]
-    if ok and ok[0]["effect"] not in members:
-        members.append(ok[0]["effect"])
-    return members
-
-
-def _training_support(result: dict, n_fit: int) -> float:
-    """Log posterior at the MAP on the fitting window, less ``0.5 log(n_fit)`` per fitted
-    parameter (a BIC penalty) [nats]: the tie-break between held-out-equal candidates."""
-    return -float(result["map_value"]) - 0.5 * len(result["map"]) * np.log(n_fit)
-
-
-def _break_ties(best: dict, passing: list[dict], results: dict, n_scored: int, n_fit: int) -> dict:
-    """Among the passing rows that ``best`` does not beat by the margin (``passes``), the
-    one the fitting window supports most (:func:`_training_support`).  Every tied row
-    gets ``tied: True``; the chosen one ``chosen_by: "training fit"`` if it is not
-    ``best``.  Held-out blocks cannot separate effects that act alike on the record (a
-    dead band below every voltage used is a torque offset on the same motor's axes);
-    the fitting window is longer and breaks the tie, and the report names the rivals."""
-    tied = [r for r in passing if r is best or not passes(results[best["effect"]]["block_scores"],
-                                                          results[r["effect"]]["block_scores"], n_scored)]
-    if len(tied) == 1:
-        return best
-    for r in tied:
-        r["tied"] = True
-    chosen = max(tied, key=lambda r: _training_support(results[r["effect"]], n_fit))
-    if chosen is not best:
-        chosen["chosen_by"] = "training fit"
-    return chosen
-
-
-def _choose(rows: list[dict], results: dict, n_scored: int, n_fit: int):
-    """The row to add (module docstring, step 5), or None."""
-    passing = [r for r in rows if r.get("passes")]
-    if not passing:
-        return None
-    singles = [r for r in passing if len(r["added"]) == 1]
-    best_single = _break_ties(singles[0], singles, results, n_scored, n_fit) if singles else None
-    best_pair = next((r for r in passing if len(r["added"]) == 2), None)
-    if best_pair is None:
-        return best_single
-    if best_single is None:
-        return best_pair
-    # the pair must beat the single by the margin too
-    better = passes(results[best_pair["effect"]]["block_scores"],
-                    results[best_single["effect"]]["block_scores"], n_scored)  # fmt: skip
-    return best_pair if better else best_single

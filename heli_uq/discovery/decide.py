@@ -1,0 +1,90 @@
+"""Decide between candidate models: rank them by held-out score, pick the singles to pair,
+break ties, choose what to add (step 5 of :mod:`heli_uq.discovery.workflow`).
+
+A model beats the current one if :func:`~heli_uq.discovery.score.passes` says so: its
+block-score difference exceeds the calibrated margin and is significant.  Single effects
+the best one does not beat by that rule are *tied* with it (effects can act alike on a
+record: a dead band below every voltage used is a torque offset); the fitting window's
+log posterior at the MAP, less a BIC penalty per parameter, breaks the tie.  A pair must
+beat the best single by the same rule.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from heli_uq.discovery.score import compare, passes
+
+__all__ = ["rank", "pair_members", "choose"]
+
+
+def rank(results: dict, reference: dict, n_scored: int) -> list[dict]:
+    """Candidates with their score difference to ``reference`` and its SE, best first."""
+    rows = []
+    for key, res in results.items():
+        if "error" in res:
+            rows.append({"effect": key, "score": None, "score_se": None, "error": res["error"]})
+            continue
+        diff, se = compare(res["block_scores"], reference["block_scores"])
+        rows.append({"effect": key, "score": diff, "score_se": se,
+                     "score_per_sample": diff / n_scored,
+                     "passes": passes(res["block_scores"], reference["block_scores"], n_scored),
+                     "held_out": res["score"], "fit": res["fit"], "map_value": res["map_value"],
+                     "seconds": res["seconds"]})  # fmt: skip
+    rows.sort(key=lambda r: -np.inf if r["score"] is None else -r["score"])
+    return rows
+
+
+def pair_members(rows: list[dict], n: int) -> list[str]:
+    """Singles to pair: the ``n`` that fit the fitting window best (lowest V of the mean
+    simulation; an effect can help in-sample and extrapolate badly alone, yet be half of
+    a good pair, as friction on the rig's yaw) and the best by held-out score."""
+    ok = [r for r in rows if r["score"] is not None]
+    by_fit = sorted(ok, key=lambda r: r["fit"]["V"])[:n]
+    members = [r["effect"] for r in by_fit]
+    if ok and ok[0]["effect"] not in members:
+        members.append(ok[0]["effect"])
+    return members
+
+
+def _training_support(result: dict, n_fit: int) -> float:
+    """Log posterior at the MAP on the fitting window, less ``0.5 log(n_fit)`` per fitted
+    parameter (a BIC penalty) [nats]: the tie-break between held-out-equal candidates."""
+    return -float(result["map_value"]) - 0.5 * len(result["map"]) * np.log(n_fit)
+
+
+def _break_ties(best: dict, passing: list[dict], results: dict, n_scored: int, n_fit: int) -> dict:
+    """Among the passing rows that ``best`` does not beat by the margin (``passes``), the
+    one the fitting window supports most (:func:`_training_support`).  Every tied row
+    gets ``tied: True``; the chosen one ``chosen_by: "training fit"`` if it is not
+    ``best``.  Held-out blocks cannot separate effects that act alike on the record (a
+    dead band below every voltage used is a torque offset on the same motor's axes);
+    the fitting window is longer and breaks the tie, and the report names the rivals."""
+    tied = [r for r in passing if r is best or not passes(results[best["effect"]]["block_scores"],
+                                                          results[r["effect"]]["block_scores"], n_scored)]
+    if len(tied) == 1:
+        return best
+    for r in tied:
+        r["tied"] = True
+    chosen = max(tied, key=lambda r: _training_support(results[r["effect"]], n_fit))
+    if chosen is not best:
+        chosen["chosen_by"] = "training fit"
+    return chosen
+
+
+def choose(rows: list[dict], results: dict, n_scored: int, n_fit: int):
+    """The row to add (module docstring), or None."""
+    passing = [r for r in rows if r.get("passes")]
+    if not passing:
+        return None
+    singles = [r for r in passing if len(r["added"]) == 1]
+    best_single = _break_ties(singles[0], singles, results, n_scored, n_fit) if singles else None
+    best_pair = next((r for r in passing if len(r["added"]) == 2), None)
+    if best_pair is None:
+        return best_single
+    if best_single is None:
+        return best_pair
+    # the pair must beat the single by the margin too
+    better = passes(results[best_pair["effect"]]["block_scores"],
+                    results[best_single["effect"]]["block_scores"], n_scored)  # fmt: skip
+    return best_pair if better else best_single

@@ -26,6 +26,7 @@ coordinates are chosen; the choice only changes how fast NUTS explores it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import jax
@@ -132,9 +133,13 @@ class SamplerMap:
         log_slope = jax.nn.log_sigmoid(y) - _log_softplus(y)
         return x, jnp.sum(jnp.where(mask, log_slope, 0.0))
 
+    # Compiled once per map: every saved chunk of a run maps its draws with it.
+    @functools.cached_property
+    def _x_batched(self):
+        return jax.jit(jax.vmap(lambda v: self.x_and_log_det(v)[0]))
+
     def x(self, w: np.ndarray) -> np.ndarray:
         """Sampler coordinates of ``w`` (..., d) (NumPy)."""
         w = np.asarray(w, dtype=float)
-        flat = w.reshape(-1, w.shape[-1])
-        x = jax.jit(jax.vmap(lambda v: self.x_and_log_det(v)[0]))(jnp.asarray(flat))
+        x = self._x_batched(jnp.asarray(w.reshape(-1, w.shape[-1])))
         return np.asarray(x).reshape(w.shape)

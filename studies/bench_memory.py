@@ -15,11 +15,12 @@ bytes): the peak RSS of that one run alone, whatever ran before it, plus its wal
     python studies/bench_memory.py                       # nuts + emcee on 0:30 and full
     python studies/bench_memory.py --sampler nuts --window 0:30
     python studies/bench_memory.py --window 0:3 --warmup 20 --draws 20   # smoke run
+    python studies/bench_memory.py --sampler nuts --window full --effects yaw:quadratic_drag
 
-``--chains``, ``--warmup`` and ``--draws`` are passed through to ``heli-uq sample``
-(default: its defaults, 4 x (1000 + 1000)); the child's output goes to
-``WORK/<sampler>_<window>.log``.  A default NUTS run on the full record takes ~15 min on
-two cores; run the default study alone on the machine.
+``--chains``, ``--warmup``, ``--draws``, ``--effects`` and ``--target-accept`` are passed
+through to ``heli-uq sample`` (default: its defaults, 4 x (1000 + 1000)); the child's
+output goes to ``WORK/<sampler>_<window>.log``.  A default NUTS run on the full record
+takes ~11 min on two cores; run the default study alone on the machine.
 """
 
 from __future__ import annotations
@@ -39,6 +40,8 @@ LIMIT_MB = 4096
 #: Windows measured by default (``full``: the whole record).
 WINDOWS = ("0:30", "full")
 SAMPLERS = ("nuts", "emcee")
+#: Options passed through to ``heli-uq sample`` when given.
+PASSED = ("chains", "warmup", "draws", "effects", "target_accept")
 #: kB per MB (``ru_maxrss`` is in kB on Linux).
 KB_PER_MB = 1024
 #: The wrapper: ``python -c WRAPPER RESULT.json CMD...`` runs CMD, waits for it and writes
@@ -61,10 +64,10 @@ def sample_command(sampler: str, window: str, out: pathlib.Path, args) -> list[s
            "--sampler", sampler, "--error", args.error, "--no-progress", "--out", str(out)]  # fmt: skip
     if window != "full":
         cmd += ["--window", window]
-    for name in ("chains", "warmup", "draws"):
+    for name in PASSED:
         value = getattr(args, name)
         if value is not None:
-            cmd += [f"--{name}", str(value)]
+            cmd += [f"--{name.replace('_', '-')}", str(value)]
     return cmd
 
 
@@ -85,7 +88,8 @@ def _summary_facts(out: pathlib.Path) -> dict:
         return {}
     s = json.loads(path.read_text())
     keys = ("sampler", "chains", "draws", "substeps", "map_seconds", "warmup_seconds", "wall_s",
-            "rhat_max", "ess_bulk_min", "divergences")  # fmt: skip
+            "rhat_max", "ess_bulk_min", "ess_tail_min", "divergences", "mean_leapfrog_steps",
+            "step_size", "target_accept", "map_decrement", "health")  # fmt: skip
     return {k: s[k] for k in keys if k in s}
 
 
@@ -101,6 +105,10 @@ def main(argv=None) -> int:
     ap.add_argument("--chains", type=int, default=None, help="passed to heli-uq sample")
     ap.add_argument("--warmup", type=int, default=None, help="passed to heli-uq sample")
     ap.add_argument("--draws", type=int, default=None, help="passed to heli-uq sample")
+    ap.add_argument("--effects", default=None, metavar="AXIS:EFFECT,...",
+                    help="passed to heli-uq sample (default: the paper's model)")
+    ap.add_argument("--target-accept", type=float, default=None,
+                    help="passed to heli-uq sample (NUTS)")
     ap.add_argument("--work", default=None,
                     help="directory of the runs' outputs and logs (default: a temporary one)")
     ap.add_argument("--out", default=str(RESULTS / "bench_memory.jsonl"))
@@ -121,7 +129,7 @@ def main(argv=None) -> int:
                 mb = usage["maxrss_kb"] / KB_PER_MB
                 row = {"bench": "memory", "sampler": sampler, "window": window,
                        "data": args.data, "error": args.error,
-                       **{k: getattr(args, k) for k in ("chains", "warmup", "draws")},
+                       **{k: getattr(args, k) for k in PASSED},
                        "max_rss_mb": mb, "limit_mb": LIMIT_MB, "within_limit": mb <= LIMIT_MB,
                        "returncode": usage["returncode"], "cpu_user_s": usage["user_s"],
                        "cpu_sys_s": usage["sys_s"], "command": cmd[2:],

@@ -19,16 +19,23 @@ from heli_uq.errors import ParameterError
 from heli_uq.inference.density import LogDensity
 
 __all__ = ["MapResult", "find_map", "newton_polish", "laplace", "HESSIAN_STEP", "NEWTON_STEPS",
-           "NEWTON_TOL"]  # fmt: skip
+           "NEWTON_TOL", "NEWTON_EXTEND", "NEWTON_SCOUT_STEPS"]  # fmt: skip
 
 #: Relative step of the finite-difference Hessian (of the analytic gradient).
 HESSIAN_STEP = 1e-5
 
 #: Newton polish of :func:`find_map`: at most this many steps, stopping once the Newton
 #: decrement ``g^T H^-1 g`` (twice the predicted decrease of ``-log p``) is below
-#: :data:`NEWTON_TOL`.
-NEWTON_STEPS = 20
+#: :data:`NEWTON_TOL`.  From a good start it converges in 3-10 steps; from a poor one (a
+#: least-squares start near a saddle: a 21 s record with a yaw torque offset needed 101
+#: steps and gained 2700 nats over the 20th) it needs many, so the cap is generous and a
+#: converged polish stops early.
+NEWTON_STEPS = 200
+#: With several starts, each gets this many Newton steps; only the best continues.
+NEWTON_SCOUT_STEPS = 20
 NEWTON_TOL = 1e-15
+#: At most this many doublings of an accepted full Newton step (:func:`_extend`).
+NEWTON_EXTEND = 6
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,8 +84,9 @@ def find_map(density: LogDensity, starts: list[np.ndarray], *, maxiter: int = 20
     ``-log p`` after L-BFGS (default all).
 
     Every start runs at most ``maxiter`` L-BFGS steps (none if ``maxiter <= 0``), then
-    damped Newton steps on the finite-difference Hessian (:func:`newton_polish`); the
-    best polished optimum wins.
+    damped Newton steps on the finite-difference Hessian (:func:`newton_polish`): with
+    several polished starts, :data:`NEWTON_SCOUT_STEPS` each, then the best continues to
+    ``newton_steps`` in all (or convergence); the best polished optimum wins.
     L-BFGS alone does not converge on short records (1000 steps leave ``max |grad|`` ~ 10):
     the posterior has one direction (pitch input gain vs. gravity ratio) with curvature
     ~1e9 next to others ~1, a condition number a quasi-Newton method cannot resolve.
@@ -96,14 +104,20 @@ def find_map(density: LogDensity, starts: list[np.ndarray], *, maxiter: int = 20
     first = [(np.asarray(xs), float(v), int(k)) for xs, v, k in (run(jnp.asarray(x)) for x in starts)]
     order = np.argsort([v if np.isfinite(v) else np.inf for _, v, _ in first], kind="stable")
     chosen = set(order[: len(first) if polish_best is None else polish_best].tolist())
+    scout = min(newton_steps, NEWTON_SCOUT_STEPS) if len(chosen) > 1 else newton_steps
     for i, (xs, v, k) in enumerate(first):
         ok = np.isfinite(v) and np.all(np.isfinite(xs))
         polish = (float("nan"), float("nan"), 0)
         if ok and newton_steps > 0 and i in chosen:
-            xs, v, *polish = newton_polish(density, xs, newton_steps)
+            xs, v, *polish = newton_polish(density, xs, scout)
         ok = ok and np.isfinite(v) and np.all(np.isfinite(xs))
         results.append((v if ok else np.inf, xs, int(k), polish))
     best = min(results, key=lambda r: r[0])
+    if scout < newton_steps and np.isfinite(best[0]) and not best[3][1] < NEWTON_TOL:
+        xs, v, *polish = newton_polish(density, best[1], newton_steps - scout)
+        polish[2] += best[3][2]
+        if np.isfinite(v) and np.all(np.isfinite(xs)):
+            results[results.index(best)] = best = (v, xs, best[2], polish)
     return MapResult(x=np.asarray(best[1]), value=best[0],
                      start_values=tuple(r[0] for r in results),
                      n_iterations=tuple(r[2] for r in results), grad_max=best[3][0],
@@ -156,9 +170,28 @@ def newton_polish(density: LogDensity, x: np.ndarray, steps: int = NEWTON_STEPS)
             t *= 0.5
         else:
             break
+        if t == 1.0:  # full step accepted: extend it while -log p keeps falling
+            t, new = _extend(f, x, step, new)
         x, value, taken = x + t * step, new, taken + 1
     g = np.asarray(grad(x))
     return x, value, float(np.max(np.abs(g))), decrement, taken
+
+
+def _extend(f, x: np.ndarray, step: np.ndarray, value: float):
+    """Double an accepted full Newton step while ``f`` keeps decreasing (at most
+    :data:`NEWTON_EXTEND` doublings); returns the best ``(t, f(x + t step))``.
+
+    Newton creeps on a one-sided exponential wall (a rate identified only from above): from
+    the steep side each step covers ~1/curvature, so convergence is linear (the decrement
+    fell by 12 % per step on the synthetic default record, 20 steps left 0.008 nats).
+    """
+    t = 1.0
+    for _ in range(NEWTON_EXTEND):
+        new = float(f(x + 2 * t * step))
+        if not (np.isfinite(new) and new < value):
+            break
+        t, value = 2 * t, new
+    return t, value
 
 
 def laplace(density: LogDensity, x: np.ndarray):

@@ -22,6 +22,11 @@ EFFECT_VALUES = {"h": 0.005, "delta_pitch": 0.2, "F_c_yaw": 0.004, "c_yaw": 0.00
                  "psi_0_yaw": 0.8, "k_q_pitch": -0.01, "T_0_yaw": 0.002}  # fmt: skip
 
 
+#: Mean voltages [V] of a rig-like record: the torque offset is sampled as the net
+#: constant yaw torque at them.
+U_REF = (1.3, 0.9)
+
+
 def _priors(model, **changes):
     return PriorSet.default(model).updated(model, changes).params
 
@@ -35,7 +40,7 @@ def coords(request):
     if request.param == "h_zero":
         return Coordinates(BASE, _priors(BASE, h=0.0))
     if request.param == "effects":
-        return Coordinates(EFFECTS, _priors(EFFECTS), yaw_theta_ref=-0.3)
+        return Coordinates(EFFECTS, _priors(EFFECTS), yaw_theta_ref=-0.3, u_ref=U_REF)
     if request.param == "effects_log":
         return Coordinates(EFFECTS, _priors(EFFECTS), "log")
     return Coordinates(BASE, _priors(BASE), "log")
@@ -170,3 +175,21 @@ def test_yaw_gains_are_relative_to_the_yaw_inertia_at_the_reference_pitch():
     y_off = y.at[0].set(theta_ref + 0.6)
     off, off_moved = accel(z, y_off)[1], accel(z.at[i].add(1.5), y_off)[1]
     assert abs(float(off_moved - off)) > 1e-3 * abs(float(off))
+
+
+def test_a_constant_torque_is_sampled_as_the_net_torque_at_the_mean_voltages():
+    """Moving a yaw gain's coordinate keeps ``T_0 + K_psi_theta u_theta - K_psi_psi u_psi``
+    at the mean voltages (the straightened offset-gain ridge); without ``u_ref`` the offset
+    keeps its plain ratio coordinate."""
+    coords = Coordinates(EFFECTS, _priors(EFFECTS), u_ref=U_REF)
+    assert "T_0_yaw_net_ratio" in coords.names and "T_0_yaw_ratio" not in coords.names
+    assert "T_0_yaw_ratio" in Coordinates(EFFECTS, _priors(EFFECTS)).names
+
+    def net(p):
+        return float(p["T_0_yaw"] + p["K_psi_theta"] * U_REF[0] - p["K_psi_psi"] * U_REF[1])
+
+    z = jnp.asarray(coords.from_physical(dict(TABLE1, **EFFECT_VALUES)))
+    before = coords.to_physical(z)
+    after = coords.to_physical(z.at[coords.names.index("log_K_psi_theta_yaw_ratio")].add(0.4))
+    assert float(after["K_psi_theta"]) > 1.4 * float(before["K_psi_theta"])
+    assert abs(net(after) - net(before)) < 1e-12

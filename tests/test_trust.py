@@ -327,6 +327,7 @@ def test_unconverged_run_warns_strict_fails_and_resume_checks_its_manifest(tmp_p
     block, --strict, summary.json's health; then --resume with the same settings, with
     other settings (refused, naming them), and with nothing to resume."""
     from heli_uq.cli import main
+    from heli_uq.inference import TARGET_ACCEPT
 
     rec = tmp_path / "rec.csv"
     synthetic_experiment(duration=1.0, seed=4, noise_std=(0.003, 0.003)).to_csv(rec)
@@ -346,7 +347,8 @@ def test_unconverged_run_warns_strict_fails_and_resume_checks_its_manifest(tmp_p
     assert "WARNING: UNCONVERGED" in capsys.readouterr().err
     for change, needles in ((["--seed", "2"], ["seed 0 -> 2"]), (["--chains", "4"], ["chains 2 -> 4"]),
                             (["--window", "0:0.8"], ["data_sha256 changed", "train_s"]),
-                            (["--target-accept", "0.9"], ["target_accept 0.95 -> 0.9"])):  # fmt: skip
+                            (["--target-accept", "0.8"],
+                             [f"target_accept {TARGET_ACCEPT:g} -> 0.8"])):  # fmt: skip
         assert main(argv + ["--resume"] + change) == 2, change
         _one_line_error(capsys.readouterr().err, "--resume:", *needles)
     empty = ["--out", str(tmp_path / "empty"), "--resume"]

@@ -121,7 +121,7 @@ def add_parser(subparsers):
                         " the Laplace covariance (default: on); 'off' keeps the Laplace matrix")
     p.add_argument("--target-accept", type=float, default=None,
                    help="NUTS: target acceptance of step-size adaptation, in (0, 1) (default:"
-                        " heli_uq.inference.TARGET_ACCEPT = 0.95); raise towards 0.99 if a short"
+                        " heli_uq.inference.TARGET_ACCEPT = 0.9); raise towards 0.99 if a short"
                         " or low-noise record gives divergences (smaller steps, longer trees)")
     p.add_argument("--walkers", type=int, default=None,
                    help="emcee walkers per ensemble (default: 2 * dim + 2)")

@@ -52,6 +52,13 @@ class Parameter:
         else the prior's typical value.
     bare : str
         The name without the axis suffix (``"F_c"``), as in the effects table.
+    input : tuple or None
+        ``(index, sign)`` for a motor gain: the parameter multiplies voltage ``u[index]``
+        with ``sign`` (+1 or -1) in the torque of its ``axis``; None otherwise.
+    constant_torque : bool
+        True for a constant torque on ``axis`` (a torque offset): with the gains of that
+        axis it is sampled as the net constant torque at the record's mean voltages (see
+        :class:`heli_uq.probability.coordinates.Coordinates`).
     """
 
     name: str
@@ -64,6 +71,8 @@ class Parameter:
     description: str = ""
     start: float | None = None
     bare: str = ""
+    input: tuple | None = None
+    constant_torque: bool = False
 
     def __post_init__(self):
         if not self.bare:

@@ -22,6 +22,11 @@ log_<X>_ratio           log(X / M11) for every other     yes (some weakly, e.g. 
                         on the real line, e.g. T_0)
 log_<X>_yaw_ratio       log(X / M22(theta_ref)) for the  yes
                         yaw axis
+<T>_net_ratio           (T + sum_j s_j K_j u_ref_j) / M   yes
+                        for a constant torque T (torque
+                        offset) on an axis with gains K_j
+                        (sign s_j): the net constant
+                        torque at the mean voltages
 log_<Y>, <Y>, logit_<Y> every unscaled parameter Y        as the data allow
                         (r_c excepted), by its prior's
                         support (log, identity, logit)
@@ -30,6 +35,12 @@ log_<Y>, <Y>, logit_<Y> every unscaled parameter Y        as the data allow
 The first four are the mechanics' :data:`~heli_uq.model.terms.rigid_body.BODY_COORDINATES`;
 the rest follow from each parameter's declaration (``scales_with_inertia``, ``axis``)
 and prior, so an effect added to the model gets its coordinate without code here.
+
+A constant torque and the gains of its axis trade off: the pitch voltage barely varies on
+the rig, so ``K_psi_theta u_theta`` is nearly a yaw offset too.  In ``T / M22`` and
+``log(K / M22)`` that trade-off is an exponentially curved ridge (a hidden yaw offset on a
+21 s record: NUTS took 217 leapfrog steps per draw, step size 0.07); sampling the net
+constant torque at the mean voltages ``u_ref`` of the training window makes it straight.
 
 The yaw torques act through the yaw inertia ``M22(theta)``, which the record identifies
 mainly at the pitch angles it visits.  Relative to ``M11`` the yaw gains trade against
@@ -97,6 +108,10 @@ class Coordinates:
         ``auto`` uses ``identifiable`` when the model and priors allow it.
     yaw_theta_ref : float
         Pitch angle [rad] at which the yaw inertia of the yaw-ratio coordinates is taken.
+    u_ref : (float, float)
+        Voltages [V] (by default none, ``(0, 0)``; :func:`heli_uq.probability.make_problem`
+        uses the training window's means) at which a constant torque is sampled as the net
+        constant torque of its axis (``<T>_net_ratio``).
 
     Attributes
     ----------
@@ -114,6 +129,7 @@ class Coordinates:
     priors: Mapping
     strategy: str = "auto"
     yaw_theta_ref: float = 0.0
+    u_ref: tuple = (0.0, 0.0)
 
     def __post_init__(self):
         if self.strategy not in STRATEGIES:
@@ -146,7 +162,10 @@ class Coordinates:
                     # "_yaw_ratio": relative to M22; effect names already end in "_yaw"
                     yaw = decl[n].axis == "yaw" and not n.endswith("_yaw")
                     suffix = "_yaw_ratio" if yaw else "_ratio"
-                    specs.append((_coordinate_name(n, tr, suffix), n, "ratio"))
+                    if decl[n].constant_torque and tr == "identity" and any(self.u_ref):
+                        specs.append((f"{n}_net_ratio", n, "net"))
+                    else:
+                        specs.append((_coordinate_name(n, tr, suffix), n, "ratio"))
                 else:
                     specs.append((_coordinate_name(n, tr), n, "plain"))
         else:
@@ -194,16 +213,28 @@ class Coordinates:
             body = [jnp.exp(z[0]), jnp.exp(z[1]), jax.nn.sigmoid(z[2]),
                     z[3] if start == 4 else jnp.zeros(())]  # fmt: skip
             out.update(body_from_ratios(*body, out))
+        net = []
         for i, (_, n, kind) in enumerate(self._specs[start:], start):
             if kind == "plain":
                 out[n] = self.priors[n].from_coordinate(z[i])
+            elif kind == "net":
+                net.append((i, n))  # needs the gains of its axis first
             elif self._decl[n].axis == "yaw":
                 later.append((i, n))  # needs M22, i.e. J_s and the body, first
             else:
                 out[n] = pitch_inertia(out) * self.priors[n].from_coordinate(z[i])
         for i, n in later:
             out[n] = self._inertia(out, "yaw") * self.priors[n].from_coordinate(z[i])
+        for i, n in net:
+            out[n] = self._inertia(out, self._decl[n].axis) * z[i] - self._gain_torque(out, n)
         return out
+
+    def _gain_torque(self, values, name):
+        """``sum_j s_j K_j u_ref_j`` over the gains of ``name``'s axis [N m]."""
+        axis = self._decl[name].axis
+        return sum(sign * values[g] * self.u_ref[index] for g, par in self._decl.items()
+                   if par.input is not None and par.axis == axis
+                   for index, sign in [par.input])  # fmt: skip
 
     def from_physical(self, values: Mapping[str, float]) -> np.ndarray:
         """Coordinates of a full parameter mapping (inverse of :meth:`to_physical`)."""
@@ -215,6 +246,10 @@ class Coordinates:
             z = z[: sum(1 for s in self._specs if s[2] == "body")]
         for _, n, kind in self._specs:
             if kind == "body":
+                continue
+            if kind == "net":
+                axis = self._decl[n].axis
+                z.append((v[n] + float(self._gain_torque(v, n))) / float(self._inertia(v, axis)))
                 continue
             x = v[n] if kind == "plain" else v[n] / float(self._inertia(v, self._decl[n].axis))
             z.append(float(self.priors[n].to_coordinate(x)))
@@ -284,6 +319,8 @@ class Coordinates:
         return m[:, 0], m[:, 1]
 
     def describe(self) -> dict:
-        """JSON facts: strategy, coordinate names, unidentified ones, ``yaw_theta_ref``."""
+        """JSON facts: strategy, coordinate names, unidentified ones, ``yaw_theta_ref``,
+        ``u_ref``."""
         return {"strategy": self.resolved, "names": list(self.names),
-                "unidentified": list(self.unidentified), "yaw_theta_ref": self.yaw_theta_ref}  # fmt: skip
+                "unidentified": list(self.unidentified), "yaw_theta_ref": self.yaw_theta_ref,
+                "u_ref": list(self.u_ref)}  # fmt: skip

@@ -125,7 +125,8 @@ def make_problem(record: Experiment, train=None, test=None, *, model: HeliModel 
     t0 = float(record.t[0])
     a, b = train if train is not None else (t0, t0 + record.duration)
     tr = record.window(a, b)
-    coords = Coordinates(model, priors.params, strategy, yaw_theta_ref=float(np.median(tr.y[:, 0])))
+    coords = Coordinates(model, priors.params, strategy, yaw_theta_ref=float(np.median(tr.y[:, 0])),
+                         u_ref=tuple(float(m) for m in np.mean(tr.u, axis=0)))  # fmt: skip
     if test is None:
         span, test_idx = tr, None
     else:

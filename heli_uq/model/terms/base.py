@@ -20,6 +20,7 @@ model is a pytree that ``jax.jit`` treats as a constant.
 from __future__ import annotations
 
 import abc
+import dataclasses
 
 import equinox as eqx
 
@@ -114,16 +115,10 @@ class AbstractEffect(AbstractTerm):
         """Parameters with bare names (``F_c``); :meth:`parameters` adds the axis."""
 
     def parameters(self) -> tuple[Parameter, ...]:
-        out = []
-        for par in self._declare():
-            out.append(Parameter(
-                name=f"{par.name}_{self.axis}", unit=par.unit, default=par.default,
-                prior=par.prior, support=par.support,
-                scales_with_inertia=par.scales_with_inertia,
-                axis=self.axis if par.scales_with_inertia else None,
-                description=f"{par.description} ({self.axis})", start=par.start, bare=par.name,
-            ))  # fmt: skip
-        return tuple(out)
+        return tuple(dataclasses.replace(
+            par, name=f"{par.name}_{self.axis}", axis=self.axis if par.scales_with_inertia else None,
+            description=f"{par.description} ({self.axis})", bare=par.name,
+        ) for par in self._declare())  # fmt: skip
 
     def name(self, bare: str) -> str:
         """The full name of one of this effect's parameters."""

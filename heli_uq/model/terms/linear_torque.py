@@ -16,19 +16,20 @@ from heli_uq.model.terms.rigid_body import DEFAULT_LOG_SIGMA
 __all__ = ["LinearTorque", "LINEAR_TORQUE_PARAMETERS"]
 
 
-def _gain(name, unit, nominal, fitted, axis, text) -> Parameter:
+def _gain(name, unit, nominal, fitted, axis, text, source=None) -> Parameter:
     return Parameter(name, unit, nominal, Prior("lognormal", nominal, DEFAULT_LOG_SIGMA),
-                     "nonnegative", True, axis, text, fitted)  # fmt: skip
+                     "nonnegative", True, axis, text, fitted, input=source)  # fmt: skip
 
 
 #: Paper Table 2 (default) and Table 1 (start) values.
 LINEAR_TORQUE_PARAMETERS: tuple[Parameter, ...] = (
-    _gain("K_theta_theta", "N m/V", 0.055, 0.105, "pitch", "pitch torque per pitch-motor volt"),
+    _gain("K_theta_theta", "N m/V", 0.055, 0.105, "pitch", "pitch torque per pitch-motor volt",
+          (0, 1.0)),
     _gain("K_theta_psi", "N m/V", 0.005, 0.0017, "pitch",
-          "pitch torque per yaw-motor volt (enters with minus sign)"),
-    _gain("K_psi_theta", "N m/V", 0.15, 0.03, "yaw", "yaw torque per pitch-motor volt"),
+          "pitch torque per yaw-motor volt (enters with minus sign)", (1, -1.0)),
+    _gain("K_psi_theta", "N m/V", 0.15, 0.03, "yaw", "yaw torque per pitch-motor volt", (0, 1.0)),
     _gain("K_psi_psi", "N m/V", 0.20, 0.043, "yaw",
-          "yaw torque per yaw-motor volt (enters with minus sign)"),
+          "yaw torque per yaw-motor volt (enters with minus sign)", (1, -1.0)),
     _gain("D_theta", "N m s/rad", 0.01, 0.014, "pitch", "viscous friction in pitch"),
     _gain("D_psi", "N m s/rad", 0.08, 0.11, "yaw", "viscous friction in yaw"),
 )  # fmt: skip

@@ -25,7 +25,7 @@ class TorqueOffset(AbstractEffect, AbstractTorque):
 
     def _declare(self):
         return (Parameter("T_0", "N m", 0.0, Prior("normal", 0.0, 0.05), "real", True, None,
-                          "constant torque", 0.0),)  # fmt: skip
+                          "constant torque", 0.0, constant_torque=True),)  # fmt: skip
 
     def __call__(self, p, x, v, u):
         return on_axis(self.axis, p[self.name("T_0")])

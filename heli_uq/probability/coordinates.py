@@ -22,11 +22,12 @@ log_<X>_ratio           log(X / M11) for every other     yes (some weakly, e.g. 
                         on the real line, e.g. T_0)
 log_<X>_yaw_ratio       log(X / M22(theta_ref)) for the  yes
                         yaw axis
-<T>_net_ratio           (T + sum_j s_j K_j u_ref_j) / M   yes
+<T>_net_ratio           (T + sum_j s_j K_j u_j) / M      yes
                         for a constant torque T (torque
-                        offset) on an axis with gains K_j
-                        (sign s_j): the net constant
-                        torque at the mean voltages
+                        offset), K_j the gains of its
+                        axis, s_j their signs: the net
+                        constant torque at the mean
+                        voltages u
 log_<Y>, <Y>, logit_<Y> every unscaled parameter Y        as the data allow
                         (r_c excepted), by its prior's
                         support (log, identity, logit)

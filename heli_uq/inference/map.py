@@ -112,12 +112,13 @@ def find_map(density: LogDensity, starts: list[np.ndarray], *, maxiter: int = 20
             xs, v, *polish = newton_polish(density, xs, scout)
         ok = ok and np.isfinite(v) and np.all(np.isfinite(xs))
         results.append((v if ok else np.inf, xs, int(k), polish))
-    best = min(results, key=lambda r: r[0])
+    i_best = min(range(len(results)), key=lambda i: results[i][0])
+    best = results[i_best]
     if scout < newton_steps and np.isfinite(best[0]) and not best[3][1] < NEWTON_TOL:
         xs, v, *polish = newton_polish(density, best[1], newton_steps - scout)
         polish[2] += best[3][2]
         if np.isfinite(v) and np.all(np.isfinite(xs)):
-            results[results.index(best)] = best = (v, xs, best[2], polish)
+            results[i_best] = best = (v, xs, best[2], polish)
     return MapResult(x=np.asarray(best[1]), value=best[0],
                      start_values=tuple(r[0] for r in results),
                      n_iterations=tuple(r[2] for r in results), grad_max=best[3][0],

@@ -233,9 +233,8 @@ class Coordinates:
     def _gain_torque(self, values, name):
         """``sum_j s_j K_j u_ref_j`` over the gains of ``name``'s axis [N m]."""
         axis = self._decl[name].axis
-        return sum(sign * values[g] * self.u_ref[index] for g, par in self._decl.items()
-                   if par.input is not None and par.axis == axis
-                   for index, sign in [par.input])  # fmt: skip
+        return sum(par.input[1] * values[g] * self.u_ref[par.input[0]]
+                   for g, par in self._decl.items() if par.input is not None and par.axis == axis)
 
     def from_physical(self, values: Mapping[str, float]) -> np.ndarray:
         """Coordinates of a full parameter mapping (inverse of :meth:`to_physical`)."""

@@ -21,6 +21,9 @@ from heli_uq.simulation.synthetic import ENCODER_QUANTUM
 TINY = Budget(n_starts=2, cold_starts=0, draws=40, pair_top=0, chains=2, warmup=150, samples=150,
               max_tree_depth=6)
 CANDIDATES = ("yaw:coulomb_friction", "yaw:torque_offset", "yaw:quadratic_drag", "pitch:torque_offset")
+#: The hidden-offset run leaves out friction, whose stiff fit is the slowest candidate (the
+#: null run keeps it: friction is the effect most able to fit noise).
+OFFSET_CANDIDATES = CANDIDATES[1:]
 SECONDS, SPLIT = 30.0, 21.0
 #: Hidden yaw torque offset [N m] (a fit of the rig's yaw with friction gives -0.07).  Not
 #: friction: the NUTS refit of a stiff friction model takes minutes; the confusion study
@@ -38,7 +41,7 @@ def _record(effects, values, seed):
 def test_discover_names_a_hidden_yaw_offset_and_closes_the_gap(tmp_path):
     rec = _record(["yaw:torque_offset"], {"T_0_yaw": HIDDEN_T_0}, seed=11)
     res = discover(rec, tmp_path, train=(0.0, SPLIT), test=(SPLIT, SECONDS), budget=TINY,
-                   candidates=CANDIDATES, scheduler="serial", log=lambda m: None)  # fmt: skip
+                   candidates=OFFSET_CANDIDATES, scheduler="serial", log=lambda m: None)  # fmt: skip
     assert tuple(res) == DISCOVERY_KEYS
     assert json.loads((tmp_path / "discovery.json").read_text()) == res
     assert (res["effect"], res["axis"]) == ("torque_offset", "yaw")

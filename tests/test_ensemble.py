@@ -72,6 +72,7 @@ def unconstrained(samples, index):
     return ravel_pytree({k: jnp.asarray(v) for k, v in sites.items()})[0]
 
 
+@pytest.mark.xdist_group("emcee_main_run")
 def test_shapes_sites_and_info(main_run, problem, start):
     walkers = 2 * start.density.dim + 2
     burn = MAIN["steps"] // 2
@@ -96,6 +97,7 @@ def test_shapes_sites_and_info(main_run, problem, start):
     assert all("shorter than 50 tau" in w for w in info["warnings"])
 
 
+@pytest.mark.xdist_group("emcee_main_run")
 def test_lp_is_the_log_posterior_of_the_draws(main_run, start):
     for index in [(0, 0), (0, 777), (1, 1234), (1, -1)]:
         x = unconstrained(main_run.samples, index)
@@ -103,6 +105,7 @@ def test_lp_is_the_log_posterior_of_the_draws(main_run, start):
         np.testing.assert_allclose(main_run.stats["lp"][index], lp, rtol=LP_RTOL)
 
 
+@pytest.mark.xdist_group("emcee_main_run")
 def test_posterior_contains_truth(main_run):
     s = main_run.samples
     ratio = gravity_ratio(s)
@@ -113,6 +116,7 @@ def test_posterior_contains_truth(main_run):
         assert abs(sigma.mean() - NOISE_STD) <= TRUTH_BAND_SD * sigma.std()
 
 
+@pytest.mark.xdist_group("emcee_main_run")
 def test_walkers_spread_to_posterior_width(main_run, start):
     sigma_index = [i for i, n in enumerate(main_run.info["coordinates"]) if n.startswith("sigma")]
     laplace_sd = np.sqrt(np.diag(start.covariance))[sigma_index]
@@ -122,6 +126,7 @@ def test_walkers_spread_to_posterior_width(main_run, start):
         assert np.all((ratio > SPREAD_RANGE[0]) & (ratio < SPREAD_RANGE[1])), ratio
 
 
+@pytest.mark.xdist_group("emcee_small_run")
 def test_same_seed_same_draws(small_run, problem, start, tmp_path):
     again = run_emcee(problem, tmp_path / "a", start=start, progress=False, **SMALL)
     assert_same_run(small_run, again)
@@ -174,6 +179,7 @@ def test_nan_log_density_is_a_rejection(problem, start, tmp_path, monkeypatch):
     assert 0.0 < run.info["acceptance"][0] < 1.0
 
 
+@pytest.mark.xdist_group("emcee_small_run")
 def test_resume_after_interrupt(small_run, problem, start, tmp_path, monkeypatch):
     saved = []
     real_save = Checkpoint.save
@@ -195,6 +201,7 @@ def test_resume_after_interrupt(small_run, problem, start, tmp_path, monkeypatch
     assert_same_run(small_run, resumed)
 
 
+@pytest.mark.xdist_group("emcee_small_run")
 def test_resume_with_more_steps(small_run, problem, start, tmp_path):
     shorter = dict(SMALL, steps=SMALL["steps"] - SMALL["chunk"])
     run_emcee(problem, tmp_path, start=start, progress=False, **shorter)

@@ -12,7 +12,6 @@ from conftest import SYNTHETIC_NOISE
 from heli_uq.cli import main
 from heli_uq.errors import ParameterError
 from heli_uq.inference import run_emcee, run_nuts
-from heli_uq.inference.checkpoint import Checkpoint
 from heli_uq.inference.density import constrain_draws, log_density_setup
 from heli_uq.output import summarize, to_inference_data
 from heli_uq.probability import log_likelihood, make_problem
@@ -44,12 +43,14 @@ def gravity_ratio(p):
                                                   + p["m"] * p["h"] ** 2)  # fmt: skip
 
 
-@pytest.fixture(scope="module")
+# session scope: a module fixture is torn down whenever an xdist worker waits for work
+@pytest.fixture(scope="session")
 def nuts_run(synthetic_problem, synthetic_start, tmp_path_factory):
     return run_nuts(synthetic_problem, tmp_path_factory.mktemp("nuts"), start=synthetic_start,
                     **NUTS)  # fmt: skip
 
 
+@pytest.mark.xdist_group("nuts_run")
 def test_nuts_recovers_identified_quantities(nuts_run, synthetic_start):
     s = nuts_run.samples
     truth = gravity_ratio(SYNTHETIC_PARAMS)
@@ -64,6 +65,7 @@ def test_nuts_recovers_identified_quantities(nuts_run, synthetic_start):
     assert np.mean(nuts_run.stats["num_steps"] >= 2 ** nuts_run.info["max_tree_depth"] - 1) < 0.5
 
 
+@pytest.mark.xdist_group("nuts_run")
 def test_nuts_and_emcee_agree(nuts_run, synthetic_problem, synthetic_start, tmp_path):
     em = run_emcee(synthetic_problem, tmp_path, start=synthetic_start, ensembles=2, steps=600,
                    seed=1, progress=False)  # fmt: skip
@@ -75,6 +77,7 @@ def test_nuts_and_emcee_agree(nuts_run, synthetic_problem, synthetic_start, tmp_
 LOGLIK_SUM_RTOL = 1e-10
 
 
+@pytest.mark.xdist_group("nuts_run")
 def test_inference_data_groups_and_dims(nuts_run, synthetic_problem):
     idata = to_inference_data(nuts_run, prior_draws=50, pp_draws=40)
     for group in ("posterior", "sample_stats", "log_likelihood", "prior",
@@ -117,32 +120,6 @@ def test_failed_solve_is_a_rejected_proposal(synthetic_problem, synthetic_start)
     value = density.potential(x_bad)
     assert np.isposinf(float(value))
     assert np.isfinite(float(density.potential(jnp.asarray(synthetic_start.x_map))))
-
-
-@pytest.mark.slow
-def test_resume_gives_the_same_draws(synthetic_problem, synthetic_start, tmp_path, monkeypatch):
-    kw = dict(chains=1, warmup=30, draws=40, chunk=20, seed=3, progress=False,
-              start=synthetic_start)  # fmt: skip
-    full = run_nuts(synthetic_problem, tmp_path / "full", **kw)
-    calls = {"n": 0}
-    original = Checkpoint.save
-
-    def interrupt(self, *args, **kwargs):
-        calls["n"] += 1
-        original(self, *args, **kwargs)
-        if calls["n"] == 1:
-            raise KeyboardInterrupt
-
-    monkeypatch.setattr(Checkpoint, "save", interrupt)
-    with pytest.raises(KeyboardInterrupt):
-        run_nuts(synthetic_problem, tmp_path / "cut", **kw)
-    monkeypatch.setattr(Checkpoint, "save", original)
-    resumed = run_nuts(synthetic_problem, tmp_path / "cut", resume=True, **kw)
-    for k in full.samples:
-        np.testing.assert_array_equal(full.samples[k], resumed.samples[k], err_msg=k)
-    # other settings: refused, naming the difference
-    with pytest.raises(ParameterError, match="seed"):
-        run_nuts(synthetic_problem, tmp_path / "cut", resume=True, **dict(kw, seed=4))
 
 
 def test_overlapping_windows_and_bad_draws_are_clear_errors(synthetic_problem, tmp_path):

@@ -32,6 +32,9 @@ def _effects_help() -> str:
     for name, cls in EFFECTS.items():
         pars = ", ".join(f"{p.name} [{p.unit}]" for p in cls()._declare())
         lines.append(f"  {name:18s} {pars}")
+    lines.append("  neural_torque      hybrid model: a tanh network torque of the voltages (weights "
+                 "nn_W_*, nn_b_*, nn_w_* [N m]); options inputs (u | u,x,v) and hidden in a "
+                 "model file")
     return "\n".join(lines)
 
 

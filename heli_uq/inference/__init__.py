@@ -1,5 +1,5 @@
 """Inference: the log density, least squares and MAP, the Laplace approximation, NUTS and
-emcee, with chunked resumable output.
+emcee, with chunked resumable output; point training of hybrid models (Adam, L-BFGS).
 
 Layer 5 (imports data, model, simulate and probability).
 """
@@ -21,10 +21,12 @@ from heli_uq.inference.start import Start as Start
 from heli_uq.inference.start import least_squares_fit as least_squares_fit
 from heli_uq.inference.start import prepare_start as prepare_start
 from heli_uq.inference.start import start_parameters as start_parameters
+from heli_uq.inference.train import Training as Training
+from heli_uq.inference.train import train as train
 
 SAMPLERS = ("nuts", "emcee")
 
 __all__ = ["Checkpoint", "LogDensity", "constrain_draws", "log_density_setup", "run_emcee",
            "masked_least_squares", "MapResult", "find_map", "laplace", "TARGET_ACCEPT",
            "SamplerRun", "run_nuts", "Start", "least_squares_fit", "prepare_start",
-           "start_parameters", "SAMPLERS", "run_manifest"]  # fmt: skip
+           "start_parameters", "SAMPLERS", "run_manifest", "train", "Training"]  # fmt: skip

@@ -136,8 +136,18 @@ class HeliModel(eqx.Module):
 
     # ------------------------------------------------------------- dynamics
     def prepare(self, p):
-        """Parameter-only work, once per solve: ``(mechanics coefficients, p)``."""
-        return self.mechanics.prepare(p), p
+        """Parameter-only work, once per solve: ``(mechanics coefficients, p)``, with ``p``
+        extended by the terms' derived values (:meth:`AbstractTerm.derived`)."""
+        extra = {}
+        for term in self.inputs + self.torques:
+            extra.update(term.derived(p))
+        return self.mechanics.prepare(p), ({**p, **extra} if extra else p)
+
+    def adapted(self, u, y, dt) -> HeliModel:
+        """This model with every term set up for a training window (``u`` (N, 2) [V],
+        ``y`` (N, 2) [rad], ``dt`` [s]; e.g. a neural term's input scaling)."""
+        return HeliModel(self.mechanics, tuple(t.adapt_to(u, y, dt) for t in self.inputs),
+                         tuple(t.adapt_to(u, y, dt) for t in self.torques))
 
     def input_voltages(self, p, u):
         """The voltages after every input map, a pair ``(u_theta, u_psi)`` [V]."""

@@ -23,7 +23,7 @@ import os
 from heli_uq.errors import ParameterError
 from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.parameter import AXES
-from heli_uq.model.terms import EFFECTS, ClosedFormMechanics, LagrangianMechanics, LinearTorque
+from heli_uq.model.terms import TERMS, ClosedFormMechanics, LagrangianMechanics, LinearTorque
 from heli_uq.model.terms.base import AbstractInputMap
 
 __all__ = ["parse_effects", "build_model", "model_from_description", "load_model_file"]
@@ -47,13 +47,13 @@ def _effect(item, where: str):
             raise ParameterError(f"{where}: effect {item!r}: expected the keys 'effect' and 'axis'")
     else:
         raise ParameterError(f"{where}: effect {item!r}: expected 'AXIS:EFFECT' or an object")
-    if name not in EFFECTS:
+    if name not in TERMS:
         raise ParameterError(f"{where}: unknown effect {name!r}; expected one of "
-                             f"{', '.join(EFFECTS)}")  # fmt: skip
+                             f"{', '.join(TERMS)}")  # fmt: skip
     if axis not in AXES:
         raise ParameterError(f"{where}: effect {name!r}: unknown axis {axis!r}; expected one of "
                              f"{', '.join(AXES)}")  # fmt: skip
-    cls = EFFECTS[name]
+    cls = TERMS[name]
     allowed = sorted(f for f in cls.__dataclass_fields__ if f != "axis")
     bad = sorted(set(options) - set(allowed))
     if bad:

@@ -125,6 +125,7 @@ def make_problem(record: Experiment, train=None, test=None, *, model: HeliModel 
     t0 = float(record.t[0])
     a, b = train if train is not None else (t0, t0 + record.duration)
     tr = record.window(a, b)
+    model = model.adapted(tr.u, tr.y, record.dt)  # e.g. a neural term's input scaling
     coords = Coordinates(model, priors.params, strategy, yaw_theta_ref=float(np.median(tr.y[:, 0])),
                          u_ref=tuple(float(m) for m in np.mean(tr.u, axis=0)))  # fmt: skip
     if test is None:

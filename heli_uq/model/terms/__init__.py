@@ -13,6 +13,7 @@ from heli_uq.model.terms.base import AbstractTorque as AbstractTorque
 from heli_uq.model.terms.coulomb_friction import CoulombFriction as CoulombFriction
 from heli_uq.model.terms.deadband import DeadBand as DeadBand
 from heli_uq.model.terms.linear_torque import LinearTorque as LinearTorque
+from heli_uq.model.terms.neural_torque import NeuralTorque as NeuralTorque
 from heli_uq.model.terms.quadratic_drag import QuadraticDrag as QuadraticDrag
 from heli_uq.model.terms.quadratic_thrust import QuadraticThrust as QuadraticThrust
 from heli_uq.model.terms.rigid_body import AbstractMechanics as AbstractMechanics
@@ -24,9 +25,13 @@ from heli_uq.model.terms.torsional_spring import TorsionalSpring as TorsionalSpr
 #: The named effects, by their contract names.
 EFFECTS = {cls.kind: cls for cls in (DeadBand, CoulombFriction, QuadraticDrag, TorsionalSpring,
                                      QuadraticThrust, TorqueOffset)}  # fmt: skip
+#: Every term a model file or ``--effects`` may name: the vocabulary plus the neural torque
+#: of the hybrid model (not a named physical effect, so not a discovery candidate).
+TERMS = {**EFFECTS, NeuralTorque.kind: NeuralTorque}
 
 __all__ = [
     "AbstractEffect", "AbstractInputMap", "AbstractTerm", "AbstractTorque", "AbstractMechanics",
     "ClosedFormMechanics", "LagrangianMechanics", "LinearTorque", "CoulombFriction", "DeadBand",
-    "QuadraticDrag", "QuadraticThrust", "TorqueOffset", "TorsionalSpring", "EFFECTS",
+    "QuadraticDrag", "QuadraticThrust", "TorqueOffset", "TorsionalSpring", "NeuralTorque",
+    "EFFECTS", "TERMS",
 ]  # fmt: skip

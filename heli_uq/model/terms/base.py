@@ -66,6 +66,16 @@ class AbstractTerm(eqx.Module):
         """JSON description, read back by :func:`heli_uq.model.model_from_description`."""
         return {"term": self.kind}
 
+    def derived(self, p) -> dict:
+        """Values computed from the parameters once per solve, added to ``p`` under names
+        of this term (none by default)."""
+        return {}
+
+    def adapt_to(self, u, y, dt) -> AbstractTerm:
+        """This term set up for a training window (``u`` (N, 2) [V], ``y`` (N, 2) [rad],
+        ``dt`` [s]); most terms need nothing from the record and return themselves."""
+        return self
+
     def stiffness(self, p, inertia) -> float:
         """Largest rate [1/s] this term adds to the linearised dynamics (0 if negligible).
 

@@ -1,0 +1,235 @@
+"""``neural_torque``: a small neural network torque on one axis (the hybrid model, Sec. 4).
+
+A one-hidden-layer tanh network of named inputs ``q`` (``"u"``: the two voltages after
+any dead band; ``"u,x,v"``: also the angles and the rates),
+
+    s_i = (q_i - c_i) / a_i,                       (input scaling fixed from the record)
+    n(q) = sum_j w_j tanh(sum_i W_ji s_i + b_j)     [N m]
+    T(q) = n(q) - (beta_0 + beta_1 u_theta + beta_2 u_psi)    (``inputs="u"`` only)
+
+acts on ``axis``.  The output weights ``w_j`` [N m] are torque-type parameters
+(``scales_with_inertia``: they keep the common-scale null direction exact); ``W_ji``
+and ``b_j`` are dimensionless.  Default priors: ``W, b ~ N(0, 1)`` on the scaled inputs,
+``w ~ N(0, 0.05 N m)``, so the network's torque is O(0.01-0.1 N m).
+
+**Keeping the network from absorbing the physics.**  A network of the voltages can
+reproduce the linear gains ``K u`` (and a torque offset) exactly, so ``K`` and the
+network would trade off along flat directions.  For ``inputs="u"`` the network's output
+is made orthogonal to what the physics owns over the record's inputs: ``{u_theta,
+u_psi}`` (option ``project="u"``, the default: the gains of the axis) or ``{1, u_theta,
+u_psi}`` (``project="1,u"``, for a model with a ``torque_offset`` on that axis, which
+then owns the constant; ``beta_0`` is 0 otherwise).  ``beta`` is the weighted
+least-squares fit of ``n`` at the record's distinct voltage pairs (weights: the samples
+held at each pair), subtracted everywhere.  ``K`` then owns the linear part; the
+network can only add curvature, which needs more distinct voltage pairs than basis
+functions (otherwise every function of ``u`` is linear over the pairs and the network's
+torque is zero on the record).  ``project="none"`` switches the projection off.  (With
+states among the inputs the projection is not applied; the Gaussian prior on ``w`` is the
+only shrinkage.)
+
+The input scaling ``(c, a)`` and the reference pairs come from the training window
+(:meth:`NeuralTorque.adapt_to`, called by :func:`heli_uq.probability.make_problem`) and
+are stored in the model's description, so a reloaded posterior uses the same network.
+
+Parameters are named ``nn_<axis>_W_<j>_<input>``, ``nn_<axis>_b_<j>`` and
+``nn_<axis>_w_<j>``.  The network's sign and permutation symmetries make its weights
+non-identifiable one by one; judge a posterior by its output torque, not by R-hat on
+weights.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from heli_uq.errors import ParameterError
+from heli_uq.model.parameter import Parameter
+from heli_uq.model.prior import Prior
+from heli_uq.model.terms.base import AbstractEffect, AbstractTorque, on_axis
+
+__all__ = ["NeuralTorque", "NN_INPUTS", "WEIGHT_PRIOR_SD", "OUTPUT_PRIOR_SD"]
+
+#: The span projected out of a network of the voltages (module docstring).
+PROJECTIONS = ("u", "1,u", "none")
+#: Named input sets: the quantities each feeds to the network, in order.
+NN_INPUTS = {"u": ("u_theta", "u_psi"),
+             "u,x,v": ("u_theta", "u_psi", "theta", "psi", "omega_theta", "omega_psi")}
+#: Prior sd of the hidden-layer weights and biases (scaled inputs, dimensionless).
+WEIGHT_PRIOR_SD = 1.0
+#: Prior sd of the output weights [N m].
+OUTPUT_PRIOR_SD = 0.05
+#: First guess of the output weights [N m], alternating in sign: all-zero weights are a
+#: stationary point (every gradient of the hidden layer vanishes with the output weights).
+START_OUTPUT = 0.005
+#: Largest number of reference voltage pairs of the orthogonal projection.
+MAX_REFERENCE_PAIRS = 200
+
+
+def _tuple(value):
+    """Nested tuples of floats (hashable, JSON lists read back)."""
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return tuple(_tuple(v) for v in value)
+    return float(value)
+
+
+def _start_weights(hidden: int, n_in: int) -> np.ndarray:
+    """Fixed, seed-free first guess of ``W`` (hidden, n_in): spread directions of unit size,
+    so no two hidden units start alike (at ``W = 0`` every gradient of ``W`` vanishes)."""
+    angles = np.pi * (np.arange(hidden) + 0.5) / hidden
+    w = np.zeros((hidden, n_in))
+    w[:, 0] = np.cos(angles)
+    w[:, 1 % n_in] += np.sin(angles)
+    return w
+
+
+class NeuralTorque(AbstractEffect, AbstractTorque):
+    """Neural torque ``T(q)`` on ``axis`` (module docstring).
+
+    Parameters
+    ----------
+    axis : {"pitch", "yaw"}
+    inputs : {"u", "u,x,v"}
+    hidden : int
+        Hidden units (default 4; the paper used 16).
+    project : {"u", "1,u", "none"}
+        What the output is made orthogonal to, for ``inputs="u"`` (module docstring).
+    center, scale : tuple of float
+        Input scaling ``s = (q - center) / scale``, one value per input; empty until
+        :meth:`adapt_to` sets them from a record.
+    projection : tuple of tuple of float
+        ``(pairs, weights)``-derived rows of the orthogonal projection, shape (3, k) with
+        the reference pairs ``reference`` (k, 2); empty for none.
+    reference : tuple of tuple of float
+        The record's distinct voltage pairs (k, 2) [V].
+    """
+
+    kind: ClassVar[str] = "neural_torque"
+    axis: str = eqx.field(static=True, default="yaw")
+    inputs: str = eqx.field(static=True, default="u")
+    hidden: int = eqx.field(static=True, default=4)
+    project: str = eqx.field(static=True, default="u")
+    center: tuple = eqx.field(static=True, default=(), converter=_tuple)
+    scale: tuple = eqx.field(static=True, default=(), converter=_tuple)
+    projection: tuple = eqx.field(static=True, default=(), converter=_tuple)
+    reference: tuple = eqx.field(static=True, default=(), converter=_tuple)
+
+    def __check_init__(self):
+        if self.inputs not in NN_INPUTS:
+            raise ParameterError(f"neural_torque: inputs must be one of {', '.join(NN_INPUTS)}, "
+                                 f"found {self.inputs!r}")  # fmt: skip
+        if self.project not in PROJECTIONS:
+            raise ParameterError(f"neural_torque: project must be one of {', '.join(PROJECTIONS)}, "
+                                 f"found {self.project!r}")  # fmt: skip
+        if isinstance(self.hidden, bool) or not isinstance(self.hidden, int) or self.hidden < 1:
+            raise ParameterError(f"neural_torque: hidden must be a positive integer, "
+                                 f"found {self.hidden!r}")  # fmt: skip
+        n = len(NN_INPUTS[self.inputs])
+        for name in ("center", "scale"):
+            value = getattr(self, name)
+            if value and len(value) != n:
+                raise ParameterError(f"neural_torque: {name} needs {n} values (one per input "
+                                     f"{', '.join(NN_INPUTS[self.inputs])}), found {len(value)}")
+        if self.scale and min(self.scale) <= 0:
+            raise ParameterError(f"neural_torque: scale must be positive, found {self.scale}")
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return NN_INPUTS[self.inputs]
+
+    # ------------------------------------------------------------ parameters
+    def _declare(self):
+        pars = []
+        for j in range(self.hidden):
+            for i, q in enumerate(self.input_names):
+                start = float(_start_weights(self.hidden, len(self.input_names))[j, i])
+                pars.append(Parameter(f"nn_W_{j}_{q}", "1", 0.0,
+                                      Prior("normal", 0.0, WEIGHT_PRIOR_SD), "real", False, None,
+                                      f"network weight, unit {j}, input {q}", start))  # fmt: skip
+            b_start = float(np.linspace(-1.0, 1.0, self.hidden)[j]) if self.hidden > 1 else 0.0
+            pars.append(Parameter(f"nn_b_{j}", "1", 0.0, Prior("normal", 0.0, WEIGHT_PRIOR_SD),
+                                  "real", False, None, f"network bias, unit {j}", b_start))
+            pars.append(Parameter(f"nn_w_{j}", "N m", 0.0, Prior("normal", 0.0, OUTPUT_PRIOR_SD),
+                                  "real", True, None, f"network output weight, unit {j}",
+                                  START_OUTPUT * (-1) ** j))
+        return tuple(pars)
+
+    # ------------------------------------------------------------ the record
+    def adapt_to(self, u, y, dt) -> NeuralTorque:
+        """This term with the input scaling and reference pairs of a training window.
+
+        ``u`` (N, 2) [V] and ``y`` (N, 2) [rad] are the window's voltages and angles, ``dt``
+        its sample time [s].  A term that already has them (e.g. reloaded with a
+        posterior) is returned unchanged.
+        """
+        if self.center:
+            return self
+        u, y = np.asarray(u, dtype=float), np.asarray(y, dtype=float)
+        rates = np.gradient(y, float(dt), axis=0) if len(y) > 1 else np.zeros_like(y)
+        columns = {"u_theta": u[:, 0], "u_psi": u[:, 1], "theta": y[:, 0], "psi": y[:, 1],
+                   "omega_theta": rates[:, 0], "omega_psi": rates[:, 1]}  # fmt: skip
+        q = np.stack([columns[n] for n in self.input_names], axis=1)
+        center = q.mean(axis=0)
+        scale = q.std(axis=0)
+        scale = np.where(scale > 1e-9, scale, 1.0)
+        if self.inputs != "u" or self.project == "none":
+            return NeuralTorque(self.axis, self.inputs, self.hidden, self.project, center, scale)
+        pairs, counts = np.unique(u, axis=0, return_counts=True)
+        if len(pairs) > MAX_REFERENCE_PAIRS:  # keep the most-held pairs
+            keep = np.argsort(-counts)[:MAX_REFERENCE_PAIRS]
+            pairs, counts = pairs[keep], counts[keep]
+        intercept = np.ones(len(pairs)) * (self.project == "1,u")
+        basis = np.column_stack([intercept, pairs])
+        root_w = np.sqrt(counts / counts.sum())
+        projection = np.linalg.pinv(root_w[:, None] * basis, rcond=1e-10) * root_w[None, :]
+        return NeuralTorque(self.axis, self.inputs, self.hidden, self.project, center, scale,
+                            projection, pairs)  # fmt: skip
+
+    # ---------------------------------------------------------------- physics
+    def _network(self, p, q):
+        """``n(q)`` [N m] for inputs ``q`` (n_in,) or (k, n_in)."""
+        q = jnp.asarray(q)
+        center = jnp.asarray(self.center) if self.center else 0.0
+        scale = jnp.asarray(self.scale) if self.scale else 1.0
+        s = (q - center) / scale
+        out = 0.0
+        for j in range(self.hidden):
+            pre = p[self.name(f"nn_b_{j}")]
+            for i, name in enumerate(self.input_names):
+                pre = pre + p[self.name(f"nn_W_{j}_{name}")] * s[..., i]
+            out = out + p[self.name(f"nn_w_{j}")] * jnp.tanh(pre)
+        return out
+
+    def linear_part(self, p):
+        """``beta`` (3,): the weighted least-squares fit ``beta_0 + beta_1 u_theta +
+        beta_2 u_psi`` of the raw network over the reference pairs (zeros without them)."""
+        if not self.projection:
+            return jnp.zeros(3)
+        return jnp.asarray(self.projection) @ self._network(p, jnp.asarray(self.reference))
+
+    def torque(self, p, x, v, u):
+        """``T(q)`` [N m], a scalar (module docstring)."""
+        values = {"u_theta": u[0], "u_psi": u[1], "theta": x[0], "psi": x[1],
+                  "omega_theta": v[0], "omega_psi": v[1]}  # fmt: skip
+        q = jnp.stack([values[n] for n in self.input_names])
+        out = self._network(p, q)
+        if self.projection:
+            beta = p[self.name("nn_beta")] if self.name("nn_beta") in p else self.linear_part(p)
+            out = out - (beta[0] + beta[1] * u[0] + beta[2] * u[1])
+        return out
+
+    def derived(self, p) -> dict:
+        """Parameter-only work once per solve: the projection coefficients ``beta``."""
+        return {self.name("nn_beta"): self.linear_part(p)} if self.projection else {}
+
+    def __call__(self, p, x, v, u):
+        return on_axis(self.axis, self.torque(p, x, v, u))
+
+    def describe(self) -> dict:
+        return {"effect": self.kind, "axis": self.axis, "inputs": self.inputs,
+                "hidden": self.hidden, "project": self.project, "center": list(self.center),
+                "scale": list(self.scale),
+                "projection": [list(r) for r in self.projection],
+                "reference": [list(r) for r in self.reference]}  # fmt: skip

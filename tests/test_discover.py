@@ -17,9 +17,11 @@ from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model
 from heli_uq.simulation import synthetic_experiment
 from heli_uq.simulation.synthetic import ENCODER_QUANTUM
 
-#: Small effort: warm starts only, 40 Laplace draws, no pairs, NUTS 2 x (150 + 150).
+#: Small effort: warm starts only, 40 Laplace draws, no pairs, NUTS 2 x (150 + 150) with
+#: trees of at most 32 leapfrog steps (on these 21 s fitting windows most draws reach the
+#: limit at any depth; the refit is a smoke-sized end-to-end run, not a converged one).
 TINY = Budget(n_starts=2, cold_starts=0, draws=40, pair_top=0, chains=2, warmup=150, samples=150,
-              max_tree_depth=6)
+              max_tree_depth=5)
 CANDIDATES = ("yaw:coulomb_friction", "yaw:torque_offset", "yaw:quadratic_drag", "pitch:torque_offset")
 #: The hidden-offset run leaves out friction, whose stiff fit is the slowest candidate (the
 #: null run keeps it: friction is the effect most able to fit noise).

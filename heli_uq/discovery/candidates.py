@@ -20,7 +20,6 @@ import numpy as np
 from heli_uq.data import Experiment
 from heli_uq.discovery.score import MIN_BLOCKS, block_scores, gap_metrics, input_blocks
 from heli_uq.inference import prepare_start
-from heli_uq.inference.density import constrain_draws
 from heli_uq.model import X0_NAMES, build_model
 from heli_uq.output.inference_data import simulate_draws
 from heli_uq.probability import make_problem
@@ -80,9 +79,8 @@ def fitted_predictive(task: FitTask) -> Fitted:
     problem = make_problem(task.record, task.fit_window, task.score_window, model=model, error="iid")
     start = prepare_start(problem, n_starts=task.n_starts, seed=task.seed, guesses=task.guesses,
                           newton_steps=task.newton_steps, polish_best=1)
-    best = {k: np.asarray(v[0]) for k, v in constrain_draws(start.density, start.x_map[None]).items()}
-    params = {n: float(best[n]) if n in best else float(p.a) for n, p in start.problem.priors.params.items()}
-    params.update({n: float(best[n]) for n in X0_NAMES})
+    params, x0 = start.map_point()
+    params.update(zip(X0_NAMES, map(float, x0)))
     sites = start.laplace_draws(task.draws, seed=task.seed)
     _, y_sim, y_pred = simulate_draws(start.problem, {k: np.asarray(v)[None] for k, v in sites.items()},
                                       np.arange(task.draws), seed=task.seed, want_ll=False)  # fmt: skip

@@ -201,6 +201,14 @@ class Start:
         x = rng.multivariate_normal(self.x_map, self.covariance, n, method="eigh")
         return constrain_draws(self.density, x)
 
+    def map_point(self) -> tuple[dict, np.ndarray]:
+        """The MAP as ``(params, x0)``: every model parameter [SI] (fixed ones at their
+        fixed values) and the initial state (4,) [rad, rad, rad/s, rad/s]."""
+        best = {k: np.asarray(v[0]) for k, v in constrain_draws(self.density, self.x_map[None]).items()}
+        params = {n: float(best[n]) if n in best else float(p.a)
+                  for n, p in self.problem.priors.params.items()}  # fmt: skip
+        return params, np.array([float(best[n]) for n in X0_NAMES])
+
     def info(self) -> dict:
         """JSON-ready facts of the start (without the arrays)."""
         return {"map_value": float(self.map_value), "map_seconds": float(self.map_seconds),

@@ -108,7 +108,8 @@ def train(problem: Problem, params: Mapping, x0, *, trainable: Sequence[str] | s
         Record, windows and model (:func:`heli_uq.probability.make_problem`).
     params : mapping
         Starting values [SI]; missing names take the model's start values (a neural
-        term's spread first guess, not the all-zero stationary point).
+        term's spread first guess of its hidden layer), except the networks' output
+        weights, which start at 0: the hybrid starts at the physics' own ``V``.
     x0 : array, shape (4,)
         Initial state [rad, rad, rad/s, rad/s], held.
     trainable : None, "all" or sequence of str
@@ -130,7 +131,12 @@ def train(problem: Problem, params: Mapping, x0, *, trainable: Sequence[str] | s
         raise ParameterError(f"learning_rate: expected > 0, found {learning_rate!r}")
     t0 = time.perf_counter()
     model = problem.model
-    full = {**model.start_values(), **dict(params)}
+    # a network's output weights start at 0 (unless given): training starts from the
+    # physics' own V and can only improve on it (the hidden layer's spread first guess
+    # keeps every gradient alive)
+    silent = {p.name: 0.0 for t in model.torques if isinstance(t, NeuralTorque)
+              for p in t.parameters() if p.bare.startswith("nn_w_")}  # fmt: skip
+    full = {**model.start_values(), **silent, **dict(params)}
     names = _trainable_names(problem, trainable)
     logs = _transforms(problem, names)
     held = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in full.items() if k not in names}

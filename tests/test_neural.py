@@ -135,8 +135,9 @@ def test_training_learns_a_hidden_smooth_torque():
                    for n in held if n in RIG_FIT)  # fmt: skip
 
 
-def test_network_gradient_matches_finite_differences(adapted):
-    rec, model, _ = adapted
+def test_network_gradient_matches_finite_differences():
+    rec = _record()
+    model = build_model(["yaw:neural_torque"]).adapted(rec.u, rec.y, rec.dt)
     p = model.complete({**RIG_FIT, **_random_weights(model)})
     u, n = rec.u[:300], 300
 

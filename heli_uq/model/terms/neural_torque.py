@@ -142,9 +142,10 @@ class NeuralTorque(AbstractEffect, AbstractTorque):
     # ------------------------------------------------------------ parameters
     def _declare(self):
         pars = []
+        w_start = _start_weights(self.hidden, len(self.input_names))
         for j in range(self.hidden):
             for i, q in enumerate(self.input_names):
-                start = float(_start_weights(self.hidden, len(self.input_names))[j, i])
+                start = float(w_start[j, i])
                 pars.append(Parameter(f"nn_W_{j}_{q}", "1", 0.0,
                                       Prior("normal", 0.0, WEIGHT_PRIOR_SD), "real", False, None,
                                       f"network weight, unit {j}, input {q}", start))  # fmt: skip

@@ -192,9 +192,18 @@ def _make_trajectory(static_model, unravel, substeps: int):
         def cached_step(a_tree, y, u, tr):
             return step_tree(a_tree, y, u, tr)[0]
 
-        # A_k = d y_{k+1} / d y_k for all k at once (vectorised over time).
-        jac = jax.vmap(jax.jacfwd(cached_step, argnums=1), in_axes=(None, 0, 0, 0))(
-            tree, y_prev, u_prev, trig_prev)
+        # One linearisation of the time-batched step over (args, states, inputs) serves
+        # both the state Jacobians and the parameter/input cotangents below.
+        def batched(a_tree, y, u):
+            return jax.vmap(cached_step, in_axes=(None, 0, 0, 0))(a_tree, y, u, trig_prev)
+
+        _, lin = jax.linearize(batched, tree, y_prev, u_prev)
+        zero_tree = jax.tree_util.tree_map(jnp.zeros_like, tree)
+        zero_y, zero_u = jnp.zeros_like(y_prev), jnp.zeros_like(u_prev)
+        # A_k = d y_{k+1} / d y_k for all k at once: columns from the 4 unit tangents.
+        unit = jnp.eye(4, dtype=y_prev.dtype)
+        columns = jax.vmap(lambda e: lin(zero_tree, jnp.broadcast_to(e, y_prev.shape), zero_u))(unit)
+        jac = jnp.transpose(columns, (1, 2, 0))  # (N-1, 4 out, 4 in)
 
         def adjoint(lam, inp):
             a_k, c_k = inp
@@ -202,13 +211,12 @@ def _make_trajectory(static_model, unravel, substeps: int):
 
         lam0, lam_next = lax.scan(adjoint, ct[-1], (jac, ct[:-1]), reverse=True)
         # Parameter (and input) cotangents: sum_k (d y_{k+1} / d args)^T lam_{k+1}.
-        batched = jax.vmap(cached_step, in_axes=(None, 0, 0, 0))
         if us_perturbed:
-            _, vjp = jax.vjp(lambda a, u: batched(a, y_prev, u, trig_prev), tree, u_prev)
-            d_tree, d_u = vjp(lam_next)
+            d_tree, d_u = jax.linear_transpose(
+                lambda a, u: lin(a, zero_y, u), tree, u_prev)(lam_next)
             d_us = jnp.concatenate([d_u, jnp.zeros_like(us[-1:])], axis=0)
         else:
-            (d_tree,) = jax.vjp(lambda a: batched(a, y_prev, u_prev, trig_prev), tree)[1](lam_next)
+            (d_tree,) = jax.linear_transpose(lambda a: lin(a, zero_y, zero_u), tree)(lam_next)
             d_us = jnp.zeros_like(us)
         return ravel_pytree(d_tree)[0], d_us, lam0
 

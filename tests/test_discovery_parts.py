@@ -187,3 +187,18 @@ def test_tied_candidates_are_named_and_the_fitting_window_breaks_the_tie():
     for r in rows:
         r.pop("tied", None), r.pop("chosen_by", None)
     assert choose(rows, results, n_scored, n_fit)["effect"] == "yaw:x"
+
+
+def test_a_much_better_candidate_restarts_the_current_model_from_its_values():
+    from heli_uq.discovery.workflow import RESTART_NATS, _nested_guess
+
+    current = {"map_value": 1000.0, "map": {"K_pp": 0.1, "theta_0": 0.0}}
+    better = {"map_value": 1000.0 - 2 * RESTART_NATS, "map": {"K_pp": 0.3, "theta_0": 0.1, "T_0_yaw": -0.01}}
+    close = {"map_value": 1000.0 - 0.5 * RESTART_NATS, "map": {"K_pp": 0.2, "theta_0": 0.0, "F_c_yaw": 0.01}}
+    failed = {"error": "ParameterError: diverged"}
+    # the nested parameters of the best fit, without the candidate's own
+    guess = _nested_guess({"a": close, "b": better, "c": failed}, current, current["map"])
+    assert guess == {"K_pp": 0.3, "theta_0": 0.1}
+    # no candidate clearly better, or none fitted: keep the current MAP
+    assert _nested_guess({"a": close}, current, current["map"]) is None
+    assert _nested_guess({"c": failed}, current, current["map"]) is None

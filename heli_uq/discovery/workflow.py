@@ -17,6 +17,10 @@ Steps (the module of each in parentheses):
    or more effects still allowed, pairs too, of the :attr:`Budget.pair_top` singles that
    fit the fitting window best and the best single by held-out score (single effects can
    be weak alone and strong together, as friction and a torque offset on the rig's yaw).
+   A candidate nests the current model, so when one fits the fitting window much
+   better (:data:`RESTART_NATS`), the current model is refitted once from its values;
+   if that finds a better basin (a stiff hidden effect can trap the base fit: a pitch
+   friction record left the base at pitch RMSE 1.5 rad), the round is rerun from it.
    The fits are independent Dask tasks (:func:`heli_uq.executor.run_tasks`) and are saved
    as they finish, so a rerun with the same output directory reuses them.
 5. **Decide** (:mod:`~heli_uq.discovery.decide`).  The best model beats the current one
@@ -61,6 +65,9 @@ __all__ = ["discover", "Budget", "BUDGETS", "FIT_FRACTION", "MIN_SECONDS"]  # fm
 
 #: Fraction of the window the candidates are fitted on when no train/test split is given.
 FIT_FRACTION = 0.7
+#: A candidate whose fitting-window log posterior beats the current model's by more than
+#: this [nats] triggers one refit of the current model from the candidate's values.
+RESTART_NATS = 10.0
 #: Shortest window [s] discovery accepts (fitting and held-out part together).
 MIN_SECONDS = 20.0
 
@@ -145,6 +152,25 @@ def _guesses(current_map: dict, effects: list[str], implied: dict) -> tuple[dict
     probe = {**current_map, **{n: model.parameter(n).start_value() for n in new}}
     seeded = {**probe, **_clip_to_support(model, {n: implied.get(n, np.nan) for n in new})}
     return (probe, seeded) if seeded != probe else (probe,)
+
+
+def _nested_guess(results: dict, current_res: dict, current_map: dict) -> dict | None:
+    """The current model's parameters at the MAP of the candidate that fits the fitting
+    window best, if that candidate beats the current MAP by more than
+    :data:`RESTART_NATS`, else None.
+
+    A candidate nests the current model (its effect at zero is the current model), so a
+    much better candidate fit can mean the current MAP sits in a poor basin (a stiff
+    hidden effect can trap the base model's optimiser); refitting the current model from
+    the candidate's values finds out.
+    """
+    fitted = [r for r in results.values() if "error" not in r and np.isfinite(r["map_value"])]
+    if not fitted:
+        return None
+    best = min(fitted, key=lambda r: r["map_value"])
+    if best["map_value"] >= current_res["map_value"] - RESTART_NATS:
+        return None
+    return {k: v for k, v in best["map"].items() if k in current_map}
 
 
 def _key(effects) -> str:
@@ -293,12 +319,30 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     # 4-5. name: greedy steps over singles and pairs
     current, current_res, current_map = list(base_effects), base, base_fit.params
     steps, all_rows = [], []
+    restarted = False
     while len(current) - len(base_effects) < max_effects:
         singles = {}
         for e in _candidate_effects(current, vocabulary):
             singles[_key(current + [e])] = task(current + [e], _guesses(current_map, current + [e],
                                                                         implied.get(e, {})))  # fmt: skip
         results = _run_round(singles, store, record, scheduler, say)
+        if not restarted:
+            restarted = True
+            guess = _nested_guess(results, current_res, current_map)
+            if guess is not None:  # a candidate's MAP may lie in a better basin of the current model
+                say("refitting the current model from the best candidate's MAP")
+                again_task = task(current, (guess, current_map))
+                again_fit = fitted_predictive(again_task)
+                again = score_fitted(again_fit, again_task)
+                if again["map_value"] < current_res["map_value"] - RESTART_NATS:
+                    say(f"the current model's MAP improved by "
+                        f"{current_res['map_value'] - again['map_value']:.0f} nats; refitting "
+                        "the candidates from it")  # fmt: skip
+                    current_res, current_map = again, again["map"]
+                    if not steps:
+                        base_fit, base = again_fit, again
+                        where = locate(base_fit, out)
+                    continue
         rows = rank(results, current_res, n_scored)
         room = max_effects - (len(current) - len(base_effects))
         if room >= 2 and cost.pair_top >= 2:
@@ -330,6 +374,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         current = current + added
         current_res = results[choice["effect"]]
         current_map = current_res["map"]
+        restarted = False
 
     added = current[len(base_effects):]
     # 6. refit and compare

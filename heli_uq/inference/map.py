@@ -23,6 +23,10 @@ __all__ = ["MapResult", "find_map", "newton_polish", "laplace", "HESSIAN_STEP", 
 
 #: Relative step of the finite-difference Hessian (of the analytic gradient).
 HESSIAN_STEP = 1e-5
+#: Where a perturbed gradient is not finite, the step shrinks by this factor, up to
+#: :data:`HESSIAN_RETRIES` steps in all (the first is :data:`HESSIAN_STEP`).
+HESSIAN_STEP_SHRINK = 0.1
+HESSIAN_RETRIES = 3
 
 #: Newton polish of :func:`find_map`: at most this many steps, stopping once the Newton
 #: decrement ``g^T H^-1 g`` (twice the predicted decrease of ``-log p``) is below
@@ -125,15 +129,32 @@ def find_map(density: LogDensity, starts: list[np.ndarray], *, maxiter: int = 20
                      newton_decrement=best[3][1], newton_steps=best[3][2])  # fmt: skip
 
 
-def _fd_hessian(grad, x: np.ndarray) -> np.ndarray:
-    """Symmetrised central differences of the exact gradient (relative step)."""
-    d = x.size
-    h = np.empty((d, d))
-    for j in range(d):
-        eps = HESSIAN_STEP * max(1.0, abs(x[j]))
-        e = np.zeros(d)
+def _fd_column(grad, x: np.ndarray, j: int, g0: np.ndarray) -> np.ndarray:
+    """Column ``j`` of the Hessian: central differences of the exact gradient, falling back
+    to one-sided differences and smaller steps where a perturbed solve is not finite (a
+    stiff or diverging model next to the optimum)."""
+    base = HESSIAN_STEP * max(1.0, abs(x[j]))
+    for eps in base * HESSIAN_STEP_SHRINK ** np.arange(HESSIAN_RETRIES):
+        e = np.zeros(x.size)
         e[j] = eps
-        h[:, j] = (np.asarray(grad(x + e)) - np.asarray(grad(x - e))) / (2 * eps)
+        up, down = np.asarray(grad(x + e)), np.asarray(grad(x - e))
+        ok_up, ok_down = np.all(np.isfinite(up)), np.all(np.isfinite(down))
+        if ok_up and ok_down:
+            return (up - down) / (2 * eps)
+        if ok_up:
+            return (up - g0) / eps
+        if ok_down:
+            return (g0 - down) / eps
+    return np.full(x.size, np.nan)
+
+
+def _fd_hessian(grad, x: np.ndarray) -> np.ndarray:
+    """Symmetrised central differences of the exact gradient (relative step; see
+    :func:`_fd_column` for the fallback where a perturbed gradient is not finite)."""
+    g0 = np.asarray(grad(x))
+    if not np.all(np.isfinite(g0)):
+        return np.full((x.size, x.size), np.nan)
+    h = np.stack([_fd_column(grad, x, j, g0) for j in range(x.size)], axis=1)
     return 0.5 * (h + h.T)
 
 

@@ -332,8 +332,12 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
             if guess is not None:  # a candidate's MAP may lie in a better basin of the current model
                 say("refitting the current model from the best candidate's MAP")
                 again_task = task(current, (guess, current_map))
-                again_fit = fitted_predictive(again_task)
-                again = score_fitted(again_fit, again_task)
+                try:
+                    again_fit = fitted_predictive(again_task)
+                    again = score_fitted(again_fit, again_task)
+                except ParameterError as exc:  # keep the current fit; never abort the run
+                    say(f"  the refit failed ({exc}); keeping the current MAP")
+                    again = {"map_value": np.inf}
                 if again["map_value"] < current_res["map_value"] - RESTART_NATS:
                     say(f"the current model's MAP improved by "
                         f"{current_res['map_value'] - again['map_value']:.0f} nats; refitting "

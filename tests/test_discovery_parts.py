@@ -29,6 +29,33 @@ IMPLIED_RTOL = 0.05
 IMPLIED_PARAM_FACTOR = 2.0
 
 
+def test_probe_values_of_scaled_effects_follow_the_fits_axis_inertia():
+    # The common inertia scale is not identified: a fit at 7x every inertia and torque is
+    # the same fit, and a friction level or an offset means the same only as a ratio to
+    # its axis inertia.  Parameters that do not scale (a dead band in V) keep their start.
+    from heli_uq.discovery.candidates import probe_values
+    from heli_uq.model.terms.rigid_body import pitch_inertia
+
+    model = build_model(["pitch:coulomb_friction", "yaw:quadratic_drag", "yaw:deadband"])
+    new = ["F_c_pitch", "c_yaw", "delta_yaw"]
+    scaled = {p.name for p in model.parameters() if p.scales_with_inertia}
+    ref = model.complete(model.start_values())
+    fit = {k: float(v) * (7.0 if k in scaled else 1.0) for k, v in RIG_FIT.items()}
+    got = probe_values(model, fit, new)
+    at_rig = model.complete({**RIG_FIT, **{n: 0.0 for n in new}})
+    ratio_pitch = float(pitch_inertia(model.complete(fit)) / pitch_inertia(ref))
+    assert ratio_pitch == pytest.approx(7.0 * float(pitch_inertia(at_rig) / pitch_inertia(ref)), rel=1e-12)
+    assert got["F_c_pitch"] == pytest.approx(model.parameter("F_c_pitch").start_value() * ratio_pitch,
+                                             rel=1e-12)
+    ratio_yaw = float(yaw_inertia(model.complete(fit), 0.0) / yaw_inertia(ref, 0.0))
+    assert got["c_yaw"] == pytest.approx(model.parameter("c_yaw").start_value() * ratio_yaw,
+                                         rel=1e-12)
+    assert got["delta_yaw"] == model.parameter("delta_yaw").start_value()
+    # at the start values themselves every probe is the declared start
+    assert probe_values(model, model.start_values(), new) == {
+        n: model.parameter(n).start_value() for n in new}
+
+
 def test_input_blocks_follow_voltage_changes_and_merge_short_runs():
     dt = 0.01
     u = np.zeros((1000, 2))

@@ -20,11 +20,36 @@ import numpy as np
 from heli_uq.data import Experiment
 from heli_uq.discovery.score import MIN_BLOCKS, block_scores, gap_metrics, input_blocks
 from heli_uq.inference import prepare_start
-from heli_uq.model import X0_NAMES, build_model
+from heli_uq.model import AXES, X0_NAMES, build_model
 from heli_uq.output.inference_data import simulate_draws
 from heli_uq.probability import make_problem
 
-__all__ = ["FitTask", "fit_and_score", "score_fitted", "Fitted", "fitted_predictive"]
+__all__ = ["FitTask", "fit_and_score", "score_fitted", "Fitted", "fitted_predictive", "probe_values"]
+
+
+def probe_values(model, current: dict, names) -> dict:
+    """First guesses of the new parameters ``names`` of ``model`` next to a fit ``current``.
+
+    A parameter's declared start value is meant for the model's start values (Table 1).
+    The common inertia scale is not identified, so a fit may sit at any multiple of it:
+    a parameter that scales with the inertias (a friction level, a torque offset) is
+    identified only as a ratio to its axis inertia, and its guess follows that ratio,
+    ``start * M_axis(current) / M_axis(start values)`` (``M11``, or ``M22`` at zero
+    pitch).  Other parameters keep their start values.
+    """
+    ref = model.complete(model.start_values())
+    here = model.complete({k: v for k, v in current.items() if k in model.names})
+    m_ref = model.mechanics.inertia_bounds(ref, [0.0])
+    m_here = model.mechanics.inertia_bounds(here, [0.0])
+    out = {}
+    for name in names:
+        par = model.parameter(name)
+        scale = 1.0
+        if par.scales_with_inertia and par.axis is not None:
+            i = AXES.index(par.axis)
+            scale = m_here[i] / m_ref[i] if m_ref[i] > 0 and m_here[i] > 0 else 1.0
+        out[name] = par.start_value() * scale
+    return out
 
 
 @dataclasses.dataclass(frozen=True)

@@ -50,7 +50,7 @@ import time
 import numpy as np
 
 from heli_uq.data import Experiment
-from heli_uq.discovery.candidates import FitTask, fit_and_score, fitted_predictive, score_fitted
+from heli_uq.discovery.candidates import FitTask, fit_and_score, fitted_predictive, probe_values, score_fitted
 from heli_uq.discovery.decide import choose, pair_members, rank
 from heli_uq.discovery.implied import base_features, effect_features, implied_torque
 from heli_uq.discovery.locate import locate
@@ -145,11 +145,12 @@ def _clip_to_support(model, values: dict) -> dict:
 
 
 def _guesses(current_map: dict, effects: list[str], implied: dict) -> tuple[dict, ...]:
-    """Warm starts: the current MAP with the new effects at their probe values, and at the
-    values the sparse regression implies (clipped into their supports)."""
+    """Warm starts: the current MAP with the new effects at their probe values
+    (:func:`~heli_uq.discovery.candidates.probe_values`), and at the values the sparse
+    regression implies (clipped into their supports)."""
     model = build_model(effects)
     new = [p.name for p in model.parameters() if p.name not in current_map]
-    probe = {**current_map, **{n: model.parameter(n).start_value() for n in new}}
+    probe = {**current_map, **probe_values(model, current_map, new)}
     seeded = {**probe, **_clip_to_support(model, {n: implied.get(n, np.nan) for n in new})}
     return (probe, seeded) if seeded != probe else (probe,)
 

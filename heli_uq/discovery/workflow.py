@@ -50,7 +50,8 @@ import time
 import numpy as np
 
 from heli_uq.data import Experiment
-from heli_uq.discovery.candidates import FitTask, fit_and_score, fitted_predictive, probe_values, score_fitted
+from heli_uq.discovery.candidates import (FitTask, fit_and_score, fitted_predictive, probe_values,
+                                         score_fitted)
 from heli_uq.discovery.decide import choose, pair_members, rank
 from heli_uq.discovery.implied import base_features, effect_features, implied_torque
 from heli_uq.discovery.locate import locate

@@ -12,6 +12,8 @@ from the ones before it (``tests/test_layout.py`` checks this)::
     inference/              MAP, Laplace, NUTS, emcee, checkpoints
     identifiability/        structural, practical and Bayesian identifiability report
     output/                 InferenceData, diagnostics, figures, the posterior study
+    discovery/              the missing named effect of a record (``heli-uq discover``)
+    design/                 informative voltage staircases (``heli-uq design``)
     cli/                    the ``heli-uq`` command
 
 **JAX configuration.**  Importing :mod:`heli_uq` (any submodule) enables float64 in JAX

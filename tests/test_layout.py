@@ -11,9 +11,9 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "heli_uq"
 #: Layer of each top-level part of the package; a module may import only from its own layer
 #: or lower ones.  ``heli_uq/__init__.py`` (the curated facade) is exempt.
 LAYERS = {
-    "_jax_config": 0, "errors": 0, "io": 0, "figure": 0,
+    "_jax_config": 0, "errors": 0, "io": 0, "figure": 0, "log": 0,
     "data": 1, "model": 2, "simulation": 3, "probability": 4, "inference": 5,
-    "identifiability": 6, "output": 7, "discovery": 8, "cli": 9, "executor": 0,
+    "identifiability": 6, "output": 7, "discovery": 8, "design": 8, "cli": 9, "executor": 0,
 }  # fmt: skip
 
 
@@ -117,3 +117,18 @@ def test_only_the_mechanics_declaration_names_table2():
                  for path in PACKAGE.rglob("*.py") if str(path.relative_to(PACKAGE)) not in allowed
                  for line, text in _string_constants(path) if text in names]  # fmt: skip
     assert not offenders, offenders
+
+
+def test_library_code_does_not_print():
+    """Progress goes through logging (heli_uq.log); only the CLI writes to stdout itself."""
+    found = []
+    for name, path in _modules():
+        if _part(name) == "cli":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            where = f"{path.relative_to(PACKAGE.parent)}:{getattr(node, 'lineno', '?')}"
+            if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "print":
+                found.append(where)
+            elif isinstance(node, ast.Name) and node.id == "print":
+                found.append(where + " (print passed as a callback)")
+    assert not found, found

@@ -32,7 +32,7 @@ def cmd_discover(args) -> int:
     out = out_dir(args.out)
     result = discover(record, out, window=window, train=train, test=test, base_effects=base,
                       budget=args.budget, max_effects=args.max_effects, seed=args.seed,
-                      scheduler=args.scheduler, log=lambda m: print(m, flush=True))  # fmt: skip
+                      scheduler=args.scheduler)  # fmt: skip
     print(json.dumps({k: result[k] for k in ("effect", "axis", "parameters")}))
     print(f"wrote {out / 'discovery.json'}, report.md, bands_before.png, bands_after.png, "
           "residuals.png, candidates.png")  # fmt: skip

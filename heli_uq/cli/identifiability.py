@@ -55,7 +55,6 @@ def cmd_identifiability(args) -> int:
     result = identifiability_report(
         record, out, model=model, free=free, base=base, priors=priors, posterior=posterior,
         error=args.error, n_points=args.points, seed=args.seed,
-        log=(lambda _msg: None) if args.quiet else print,
     )  # fmt: skip
     st = result["structural"]
     classes = {}

@@ -8,6 +8,7 @@ Subcommands (one module each)::
     heli-uq sample --data experimental|FILE.csv [--effects ...] [--train a:b --test c:d] ...
     heli-uq identifiability --data experimental|FILE.csv [--effects ...] [--free NAMES] ...
     heli-uq discover experimental|FILE.csv [--train a:b --test c:d] [--max-effects N] --out DIR
+    heli-uq design [--posterior posterior.nc | --discovery DIR] [--duration S] --out DIR
 
 Adding a subcommand is one module with ``add_parser(subparsers)`` (building its parser,
 setting ``handler=<function(args) -> int>`` and returning the parser) plus one entry in
@@ -32,15 +33,16 @@ import re
 import shlex
 import sys
 
-from heli_uq.cli import data, discover, identifiability, run, sample, simulate
+from heli_uq.cli import data, design, discover, identifiability, run, sample, simulate
 from heli_uq.cli.options import Formatter
 from heli_uq.errors import HeliUQError
+from heli_uq.log import configure_cli
 
 __all__ = ["main", "build_parser"]
 
 PROG = "heli-uq"
 #: Subcommand modules, in the order shown by ``--help``.
-_COMMANDS = (run, simulate, data, sample, identifiability, discover)
+_COMMANDS = (run, simulate, data, sample, identifiability, discover, design)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -62,6 +64,9 @@ def _build():
     options = {}
     for module in _COMMANDS:
         leaf = module.add_parser(sub)
+        if "--quiet" not in {s for a in leaf._actions for s in a.option_strings}:
+            leaf.add_argument("--quiet", action="store_true",
+                              help="no progress messages or bars (results and errors still shown)")
         options[leaf.get_default("handler")] = {s for a in leaf._actions for s in a.option_strings}
     return parser, options
 
@@ -103,6 +108,9 @@ def main(argv: list[str] | None = None) -> int:
     parser, options = _build()
     argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
+    configure_cli(args.quiet)
+    if args.quiet and hasattr(args, "no_progress"):
+        args.no_progress = True
     try:
         return int(args.handler(args))
     except KeyboardInterrupt as exc:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 from heli_uq.cli.data import show_record
@@ -86,13 +87,14 @@ def cmd_run(args) -> int:
         status |= code if name == "record_table1" else 0  # Table 2 may diverge: reported only
     t0, t_end = float(record.t[0]), float(record.t[0]) + record.duration
     split = round(t0 + RUN_TRAIN_FRACTION * record.duration, 2)
-    print(f"[posterior] NUTS, iid errors, {model.label}, train {t0:g}:{split:g} s, test "
-          f"{split:g}:{t_end:g} s, {args.chains} chains x ({args.warmup} + {args.draws})")
+    logging.getLogger(__name__).info(
+        f"[posterior] NUTS, iid errors, {model.label}, train {t0:g}:{split:g} s, test "
+        f"{split:g}:{t_end:g} s, {args.chains} chains x ({args.warmup} + {args.draws})")
     post = out / "posterior"
     _, summary = sample_posterior(
         record, post, model=model, train=(t0, split), test=(split, t_end), error="iid",
         chains=args.chains, warmup=args.warmup, draws=args.draws, seed=args.seed,
-        progress=not args.no_progress, resume=args.resume, log=print,
+        progress=not args.no_progress, resume=args.resume,
     )  # fmt: skip
     keys = ("rhat_max", "ess_bulk_min", "divergences", "coverage90", "coverage90_test", "wall_s")
     print(json.dumps({k: summary[k] for k in keys if k in summary}))

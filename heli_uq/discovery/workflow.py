@@ -60,6 +60,7 @@ from heli_uq.discovery.sindy import rank_effects
 from heli_uq.errors import ParameterError
 from heli_uq.executor import TaskFailed, run_tasks
 from heli_uq.io import atomic_write_text
+from heli_uq.log import progress_log
 from heli_uq.model import AXES, EFFECTS, build_model
 
 __all__ = ["discover", "Budget", "BUDGETS", "FIT_FRACTION", "MIN_SECONDS"]  # fmt: skip
@@ -235,7 +236,7 @@ def _run_round(tasks: dict, store: _Store, record, scheduler, log) -> dict:
 
 def discover(record: Experiment, out_dir, *, window=None, train=None, test=None, base_effects=(),
              budget="quick", max_effects: int = 1, candidates=None, seed: int = 0,
-             scheduler="local", log=print) -> dict:  # fmt: skip
+             scheduler="local", log=None) -> dict:  # fmt: skip
     """Run the discovery workflow (module docstring) and write its outputs to ``out_dir``.
 
     Parameters
@@ -259,8 +260,8 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     seed : int
     scheduler : {"local", "serial"} or address
         See :func:`heli_uq.executor.run_tasks`.
-    log : callable
-        Progress messages.
+    log : callable, optional
+        Progress messages (default: the ``logging`` INFO of this module, see :mod:`heli_uq.log`).
 
     Returns
     -------
@@ -268,6 +269,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         The content of ``discovery.json``.
     """
     t_start = time.perf_counter()
+    log = progress_log(log, __name__)
     if not isinstance(budget, Budget) and budget not in BUDGETS:
         raise ParameterError(f"budget: expected one of {', '.join(BUDGETS)}, found {budget!r}")
     if not (isinstance(max_effects, int) and max_effects >= 1):

@@ -37,6 +37,7 @@ from heli_uq.identifiability.profiles import THRESHOLD_95, classify, profile_lik
 from heli_uq.identifiability.structural import ParameterVector, random_points, structural_analysis
 from heli_uq.inference.start import least_squares_fit, start_parameters
 from heli_uq.io import atomic_write_text
+from heli_uq.log import progress_log
 from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.prior import Prior
 from heli_uq.model.tables import X0_NAMES
@@ -247,7 +248,7 @@ def cross_check(names, structural, profiles, per_contraction, null_contraction) 
 def identifiability_report(record: Experiment, out_dir, *, model: HeliModel | None = None,
                            free=None, base=None, priors: PriorSet | None = None, posterior=None,
                            error: str = "iid", n_points: int = 5, seed: int = 0, substeps=None,
-                           log=print) -> dict:  # fmt: skip
+                           log=None) -> dict:  # fmt: skip
     """Run the whole report on ``record`` and write it to ``out_dir``; returns the JSON dict.
 
     Parameters
@@ -278,6 +279,7 @@ def identifiability_report(record: Experiment, out_dir, *, model: HeliModel | No
     from heli_uq.simulation.solver import default_substeps
 
     t_start = time.perf_counter()
+    log = progress_log(log, __name__)
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     model = HeliModel() if model is None else model

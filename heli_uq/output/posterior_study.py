@@ -17,6 +17,7 @@ import warnings
 
 import numpy as np
 
+from heli_uq.log import progress_log
 from heli_uq.data.record import Experiment
 from heli_uq.errors import ParameterError
 from heli_uq.inference import SAMPLERS, TARGET_ACCEPT, prepare_start, run_emcee, run_nuts
@@ -105,7 +106,8 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
         MAP starts tried first (physical parameters and initial state, e.g. a fit of the
         same model on a nearby window), before the model's own start values.
     log : callable, optional
-        Called with one line per stage (``"[  12 s] MAP: ..."``, elapsed time first).
+        Called with one line per stage (``"[  12 s] MAP: ..."``, elapsed time first);
+        default: the ``logging`` INFO of this module (:mod:`heli_uq.log`).
 
     The summary's ``health`` (:func:`heli_uq.output.health.check_health`) says whether
     the result can be trusted; ``bands.png`` claims no coverage when it cannot.
@@ -116,9 +118,10 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
 
+    log = progress_log(log, __name__)
+
     def stage(text: str) -> None:
-        if log is not None:
-            log(f"[{time.perf_counter() - t0:5.0f} s] {text}")
+        log(f"[{time.perf_counter() - t0:5.0f} s] {text}")
 
     problem = make_problem(record, train, test, model=model, priors=priors, error=error,
                            substeps=substeps)  # fmt: skip

@@ -3,7 +3,8 @@ staircases of the same length, at truths the design did not see?
 
 The design is made by ``heli_uq.design.design`` from the package's default prior
 (linearised at a fit of the rig record).  Held-out truths are drawn around that centre
-(sd ``--spread`` in every log coordinate); at each truth the linearised (Laplace) posterior
+(sd ``--spread`` in every log coordinate); a truth is kept only when the published profile keeps its pitch within +-90 deg (the rig
+did not flip on it); at each truth the linearised (Laplace) posterior
 of an experiment is ``(S^-1 + F(truth))^-1`` with ``F`` the whitened Fisher information of
 the simulated angles.  Reported per truth: the posterior volume of the design relative to
 the published profile (its first ``--duration`` seconds) and to the median of ``--random``
@@ -35,6 +36,10 @@ from heli_uq.data import load_data  # noqa: E402
 from heli_uq.design import DesignPrior, InformationGain, StaircaseBounds, design  # noqa: E402
 from heli_uq.design.staircase import random_staircase  # noqa: E402
 
+#: Truths drawn per kept truth before giving up (a truth is kept when the published
+#: profile keeps its pitch within +-90 deg, as the rig did).
+MAX_REJECTED = 20
+
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -58,15 +63,26 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(args.seed + 1)
     inputs = {"design": u_design, "published": published.u[: bounds.n]}
     randoms = [random_staircase(bounds, rng).inputs() for _ in range(args.random)]
-    rows = []
-    for i in range(args.truths):
+    rows, rejected = [], 0
+    while len(rows) < args.truths:
+        if rejected > MAX_REJECTED * args.truths:
+            raise SystemExit(f"design_gain: only {len(rows)} of {rejected + len(rows)} truths keep the "
+                             "published profile's pitch within +-90 deg; lower --spread")
         truth = prior.center + args.spread * rng.standard_normal(prior.center.shape)
+        # The physical range (+-90 deg), not the design's envelope: a truth counts when the
+        # rig would not flip on the published profile (it did not), and a design that flips
+        # the arm at such a truth is reported as infeasible there.
         gain = InformationGain(dataclasses.replace(prior, draws=truth[None, :]), bounds.dt)
         eig = {k: gain.value(u) for k, u in inputs.items()}
+        if not np.isfinite(eig["published"]):
+            rejected += 1
+            continue
         rand = np.array([gain.value(u) for u in randoms])
-        eig["random_median"] = float(np.median(rand[np.isfinite(rand)]))
+        eig["random_median"] = float(np.median(rand))  # an infeasible staircase counts as -inf
+        i = len(rows)
         # posterior volume ratio = exp(-(EIG_design - EIG_other)) at this truth
-        rows.append({"truth": i, "eig": eig,
+        rows.append({"truth": i, "eig": eig, "design_feasible": bool(np.isfinite(eig["design"])),
+                     "random_feasible": float(np.mean(np.isfinite(rand))),
                      "volume_ratio_vs_published": float(np.exp(eig["published"] - eig["design"])),
                      "volume_ratio_vs_random_median": float(np.exp(eig["random_median"] - eig["design"])),
                      "random_beaten": float(np.mean(rand < eig["design"]))})  # fmt: skip
@@ -74,10 +90,14 @@ def main(argv=None) -> int:
               f"random median {eig['random_median']:.2f} nats; volume ratio vs published "
               f"{rows[-1]['volume_ratio_vs_published']:.3g}, vs random median "
               f"{rows[-1]['volume_ratio_vs_random_median']:.3g}")  # fmt: skip
+    ratios = np.array([r["volume_ratio_vs_published"] for r in rows])
     row = {"study": "design_gain", "duration_s": args.duration, "spread": args.spread,
            "design_value": summary["value"], "design_seconds": summary["seconds"],
            "published_value": summary["baselines"]["published"]["value"],
            "random_median_value": summary["baselines"]["random"]["median"], "truths": rows,
+           "truths_rejected": rejected, "pitch_envelope_deg": [float(np.degrees(v)) for v in bounds.pitch],
+           "median_volume_ratio_vs_published": float(np.median(ratios)),
+           "design_feasible_fraction": float(np.mean([r["design_feasible"] for r in rows])),
            **provenance(__file__, argv, time.perf_counter() - t0)}  # fmt: skip
     print(f"wrote {append_jsonl(RESULTS / 'design_gain.jsonl', row)}")
     return 0

@@ -32,6 +32,8 @@ QUADRATIC_RTOL = 1e-2
 #: A small search (the test's budget), seconds of experiment and bounds.
 TINY = SearchBudget(random=6, climb=12, draws=1)
 DURATION = 12.0
+#: A pitch envelope [deg] narrower than the default, for the CLI test.
+ENVELOPE_DEG = (-50.0, -5.0)
 BOUNDS = StaircaseBounds(DURATION, 0.01, ((1.22, 1.47), (0.45, 1.6)), (2.0, 5.0))
 
 
@@ -151,6 +153,7 @@ def test_cli_design_rejects_bad_input_in_one_line(tmp_path, capsys):
              (["--u-psi", "1.0:0.5"], "--u-psi range"),
              (["--segment", "abc"], "--segment: expected LOW:HIGH"),
              (["--noise", "0.003,-1"], "noise: expected two numbers > 0"),
+             (["--pitch", "10:-5"], "pitch envelope: expected -90 <= LOW < HIGH <= 90 deg"),
              (["--discovery", str(tmp_path / "nowhere")], "discovery.json: not a discovery result")]
     for extra, needle in cases:
         code = main(["design", *extra, "--out", str(tmp_path / "o")])
@@ -161,7 +164,8 @@ def test_cli_design_rejects_bad_input_in_one_line(tmp_path, capsys):
 def test_cli_design_end_to_end_and_quiet(tmp_path, capsys):
     """The command writes a design within its bounds that reads back as a record; progress
     goes through logging to stdout, and --quiet leaves only the result lines."""
-    argv = ["design", "--duration", "6", "--segment", "2:3", "--compare-with", "none", "--seed", "1"]
+    argv = ["design", "--duration", "6", "--segment", "2:3", "--compare-with", "none", "--seed", "1",
+            "--pitch=" + ":".join(map(str, ENVELOPE_DEG))]
     assert main([*argv, "--out", str(tmp_path / "loud")]) == 0
     loud = capsys.readouterr().out.splitlines()
     assert any(line.startswith("hill climb 60/60") for line in loud)
@@ -174,5 +178,17 @@ def test_cli_design_end_to_end_and_quiet(tmp_path, capsys):
     changes = np.flatnonzero(np.any(np.diff(rec.u, axis=0) != 0, axis=1))
     lengths = np.diff(np.concatenate([[-1], changes, [rec.n - 1]]))
     assert lengths.min() >= 200 and lengths.max() <= 300
+    low, high = np.radians(ENVELOPE_DEG)
+    assert low <= rec.y[:, 0].min() and rec.y[:, 0].max() <= high  # predicted pitch kept in --pitch
     stored = json.loads((tmp_path / "quiet" / "design.json").read_text())
     assert stored["baselines"]["published"]["skipped"] and stored["volume_ratio_vs_published"] is None
+
+
+def test_an_input_whose_predicted_pitch_leaves_the_envelope_is_infeasible(gain):
+    """The same input is feasible in the default envelope and infeasible in one that the
+    predicted pitch leaves (it starts near -34 deg and never reaches -85 deg)."""
+    u = random_staircase(BOUNDS, np.random.default_rng(4)).inputs()
+    theta = np.asarray(gain.angles(jnp.asarray(gain.prior.center), jnp.asarray(u))[0][:, 0])
+    assert np.degrees(theta.max()) > -85.0
+    narrow = InformationGain(gain.prior, gain.dt, (np.radians(-90.0), np.radians(-85.0)))
+    assert np.isfinite(gain.value(u)) and narrow.value(u) == -np.inf

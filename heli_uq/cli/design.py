@@ -19,13 +19,15 @@ def _pair(text: str, option: str, sep: str = ":") -> tuple[float, float]:
 
 def cmd_design(args) -> int:
     import json
+    import math
 
     from heli_uq.design import SEARCH_BUDGETS, DesignPrior, Rivals, StaircaseBounds, design
     from heli_uq.design.information import DEFAULT_NOISE, DESIGN_X0, check_noise
 
     bounds = StaircaseBounds(positive_float(args.duration, "--duration"), args.dt,
                              (_pair(args.u_theta, "--u-theta"), _pair(args.u_psi, "--u-psi")),
-                             _pair(args.segment, "--segment"))  # fmt: skip
+                             _pair(args.segment, "--segment"),
+                             tuple(math.radians(v) for v in _pair(args.pitch, "--pitch")))  # fmt: skip
     sigma = None if args.noise is None else check_noise(_pair(args.noise, "--noise", ","))
     draws = SEARCH_BUDGETS[args.budget].draws
     prior = rivals = None
@@ -107,6 +109,10 @@ def add_parser(subparsers):
                    help="yaw voltage range [V] (default: the rig record's 0.45:1.6)")
     p.add_argument("--segment", default="3:14", metavar="MIN:MAX",
                    help="segment lengths [s] (default: the rig record's 3:14)")
+    p.add_argument("--pitch", default="-60:0", metavar="LO:HI",
+                   help="envelope [deg] the predicted pitch must keep at every prior draw "
+                        "(default: -60:0, arm below horizontal; the rig record stays in -39:-4); write "
+                        "--pitch=-50:-5 when LOW is negative")
     p.add_argument("--noise", default=None, metavar="SD_THETA,SD_PSI",
                    help="measurement noise sd [rad] (default: the posterior's, else 0.003,0.008)")
     p.add_argument("--compare-with", default="experimental", metavar="experimental|FILE.csv|none",

@@ -38,16 +38,18 @@ class Rival:
     params: dict
     substeps: int
 
-    def angles(self, u, dt, x0):
+    def angles(self, u, dt, x0, pitch=(-PITCH_LIMIT, PITCH_LIMIT)):
+        """Simulated (theta, psi) (N, 2) [rad], and whether pitch stays in ``pitch`` [rad]."""
         sol = solve(self.params, x0, u, dt, model=self.model, substeps=self.substeps)
         ys = np.asarray(sol.ys[:, :2])
-        ok = bool(sol.ok) and bool(np.all(np.abs(ys[:, 0]) <= PITCH_LIMIT))
+        ok = bool(sol.ok) and bool(np.all((ys[:, 0] >= pitch[0]) & (ys[:, 0] <= pitch[1])))
         return ys, ok
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Rivals:
-    """Two rival fitted models, the noise sd (2,) [rad] and the experiment's initial state (4,)."""
+    """Two rival fitted models, the noise sd (2,) [rad], the experiment's initial state (4,)
+    and the envelope ``pitch`` [rad] both predictions must keep."""
 
     a: Rival
     b: Rival
@@ -55,11 +57,12 @@ class Rivals:
     x0: np.ndarray
     dt: float = 0.01
     source: str = ""
+    pitch: tuple = (-PITCH_LIMIT, PITCH_LIMIT)
 
     def value(self, u) -> float:
-        """``D(u)`` [nats]; ``-inf`` when either simulation fails or leaves the physical range."""
-        ya, ok_a = self.a.angles(jnp.asarray(u), self.dt, self.x0)
-        yb, ok_b = self.b.angles(jnp.asarray(u), self.dt, self.x0)
+        """``D(u)`` [nats]; ``-inf`` when either simulation fails or leaves the envelope."""
+        ya, ok_a = self.a.angles(jnp.asarray(u), self.dt, self.x0, self.pitch)
+        yb, ok_b = self.b.angles(jnp.asarray(u), self.dt, self.x0, self.pitch)
         if not (ok_a and ok_b):
             return -np.inf
         return float(0.5 * np.sum(((ya - yb) / self.sigma) ** 2))

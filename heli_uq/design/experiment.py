@@ -3,6 +3,7 @@ staircases, and write ``design.csv``, ``design.json`` and ``design.png``."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import pathlib
@@ -68,11 +69,12 @@ def design(out, bounds: StaircaseBounds, *, prior: DesignPrior | None = None,
     out = pathlib.Path(out)
     effort = SEARCH_BUDGETS[budget]
     if rivals is not None:
+        rivals = dataclasses.replace(rivals, pitch=bounds.pitch)
         kind, value_of = "discrimination", rivals.value
         source, sigma, x0 = rivals.source, rivals.sigma, rivals.x0
     else:
         prior = prior or DesignPrior.default(dt=bounds.dt, seed=seed)
-        gain = InformationGain(prior, bounds.dt)
+        gain = InformationGain(prior, bounds.dt, bounds.pitch)
         kind, value_of = "information", gain.value
         source, sigma, x0 = prior.source, prior.sigma, prior.x0
     log(f"criterion: {kind}; prior: {source}")
@@ -82,7 +84,7 @@ def design(out, bounds: StaircaseBounds, *, prior: DesignPrior | None = None,
     u_pub, why = _published_inputs(published, bounds)
     pub = value_of(u_pub) if u_pub is not None else None
     if pub is not None and not math.isfinite(pub):
-        pub, why = None, "the published profile is infeasible here (failed or unphysical simulation)"
+        pub, why = None, "the published profile is infeasible here (failed simulation or pitch outside the envelope)"
     baselines["published"] = {"value": pub, **({"skipped": why} if why else {})}
     gain_pub = None if pub is None else result.value - pub
     summary = {

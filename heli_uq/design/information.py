@@ -12,7 +12,7 @@ prior to posterior volume, so directions the experiment cannot identify (the com
 scale, a fixed gain ratio) add nothing and need no special handling: the prior keeps the
 determinant finite and only identifiable combinations count.  The criterion is averaged
 over draws of the current posterior (pseudo-Bayesian design); an input whose simulation
-fails or leaves the physical range (|pitch| > 90 deg) at any draw is infeasible.
+fails or leaves the pitch envelope at any draw is infeasible.
 """
 
 from __future__ import annotations
@@ -146,17 +146,21 @@ def _vector(model, free, base, dt) -> ParameterVector:
 class InformationGain(eqx.Module):
     """``u -> (EIG per draw (K,), feasible)``: the criterion of :mod:`heli_uq.design`.
 
-    Call with voltages ``u`` of shape (N, 2) [V]; jit-compiled once per ``N``.
+    Call with voltages ``u`` of shape (N, 2) [V]; jit-compiled once per ``N``.  ``pitch``
+    ``(low, high)`` [rad] is the envelope the simulated pitch must keep at every draw
+    (default: the physical range, +-90 deg).
     """
 
     prior: DesignPrior = eqx.field(static=True)
     dt: float = eqx.field(static=True)
+    pitch: tuple = eqx.field(static=True, default=(-PITCH_LIMIT, PITCH_LIMIT),
+                             converter=lambda p: tuple(float(v) for v in p))
 
     def angles(self, w, u):
-        """Simulated (theta, psi), shape (N, 2) [rad], and whether they are physical."""
+        """Simulated (theta, psi), shape (N, 2) [rad], and whether pitch stays in ``pitch``."""
         sol = self.prior.pv.solve(w, u, self.dt, jnp.asarray(self.prior.x0), gradients="autodiff")
         ys = sol.ys[:, :2]
-        return ys, sol.ok & jnp.all(jnp.abs(ys[:, 0]) <= PITCH_LIMIT)
+        return ys, sol.ok & jnp.all((ys[:, 0] >= self.pitch[0]) & (ys[:, 0] <= self.pitch[1]))
 
     def fisher(self, w, u):
         """Whitened Fisher information ``F`` (P, P) at ``w`` and feasibility."""

@@ -77,8 +77,8 @@ def search_staircase(criterion: Callable[[np.ndarray], float], bounds: Staircase
         log(f"random staircase {i + 1}/{budget.random}: {v:.4g} (best {value:.4g})")
     if best is None:
         raise ParameterError(f"design: all {budget.random} random staircases are infeasible "
-                             "(the simulation fails or pitch leaves +-90 deg); narrow the "
-                             "voltage ranges")  # fmt: skip
+                             "(the simulation fails or pitch leaves its envelope); narrow the "
+                             "voltage ranges or widen --pitch")  # fmt: skip
     accepted = 0
     for i in range(budget.climb):
         stairs = mutate(best, bounds, rng)

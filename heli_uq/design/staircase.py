@@ -14,9 +14,15 @@ import math
 import numpy as np
 
 from heli_uq.errors import ParameterError
+from heli_uq.simulation.physical import PITCH_LIMIT
 from heli_uq.simulation.synthetic import RIG_HOLD, RIG_RANGES
 
-__all__ = ["StaircaseBounds", "Staircase", "random_staircase", "mutate"]
+__all__ = ["StaircaseBounds", "Staircase", "random_staircase", "mutate", "PITCH_ENVELOPE"]
+
+#: Default envelope of the predicted pitch [rad]: -60 to 0 deg, the arm below horizontal.  The
+#: rig record stays within -39 to -4 deg, where the model was fitted; a design that drives the
+#: arm over the top gains information from a motion the rig cannot make safely.
+PITCH_ENVELOPE = (math.radians(-60.0), 0.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,6 +39,8 @@ class StaircaseBounds:
         ``(low, high)`` voltages [V] of u_theta and u_psi (default: the rig record's).
     hold : (float, float)
         Shortest and longest segment [s] (default: the rig record's 3-14 s).
+    pitch : (float, float)
+        Envelope [rad] the predicted pitch must stay in (default :data:`PITCH_ENVELOPE`).
 
     Raises
     ------
@@ -46,8 +54,15 @@ class StaircaseBounds:
     dt: float = 0.01
     ranges: tuple = RIG_RANGES
     hold: tuple = RIG_HOLD
+    pitch: tuple = None
 
     def __post_init__(self):
+        if self.pitch is None:
+            object.__setattr__(self, "pitch", PITCH_ENVELOPE)
+        lo, hi = self.pitch
+        if not (-PITCH_LIMIT <= lo < hi <= PITCH_LIMIT):
+            raise ParameterError(f"pitch envelope: expected -90 <= LOW < HIGH <= 90 deg, found "
+                                 f"{math.degrees(lo):g}:{math.degrees(hi):g} deg")  # fmt: skip
         for name, (lo, hi) in zip(("u_theta", "u_psi"), self.ranges):
             if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
                 raise ParameterError(f"{name} range: expected finite LOW < HIGH [V], found {lo:g}:{hi:g}")
@@ -86,7 +101,7 @@ class StaircaseBounds:
     def to_json(self) -> dict:
         return {"duration_s": self.duration, "dt_s": self.dt,
                 "u_theta_V": list(self.ranges[0]), "u_psi_V": list(self.ranges[1]),
-                "segment_s": list(self.hold)}  # fmt: skip
+                "segment_s": list(self.hold), "pitch_deg": [math.degrees(v) for v in self.pitch]}  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)

@@ -5,6 +5,8 @@
 # Units: angles in rad, rates in rad/s, voltages in V, parameters in SI (paper Table 2).
 
 # %%
+from _setup import rig_or_synthetic  # noqa: I001  (first: it sets up warnings)
+
 import jax
 import jax.numpy as jnp
 
@@ -12,11 +14,7 @@ import heli_uq
 from heli_uq.simulation import default_substeps
 from heli_uq.simulation.reference import solver_error
 
-try:
-    exp = heli_uq.load_data("experimental")  # HELI_UQ_DATA or a checked download
-except heli_uq.HeliUQError as exc:  # offline and no local copy: the embedded synthetic record
-    print(f"real record not available ({exc});\nusing the synthetic record (seed 0, 60 s)")
-    exp = heli_uq.synthetic_experiment(seed=0, duration=60.0)
+exp, _, _ = rig_or_synthetic()  # HELI_UQ_DATA, a checked download, or the synthetic record
 print(f"{exp.source}: {exp.n} samples, dt = {exp.dt} s")
 x0 = jnp.array([exp.y[0, 0], exp.y[0, 1], 0.0, 0.0])  # first measured angles, at rest
 

@@ -15,10 +15,13 @@ import time
 
 import numpy as np
 
+#: Root of the study outputs: ``studies/`` (the stored results), or ``HELI_UQ_STUDY_ROOT``
+#: (``python -m studies run --size quick`` sets it to ``studies/quick/``).
+ROOT = pathlib.Path(os.environ.get("HELI_UQ_STUDY_ROOT") or pathlib.Path(__file__).resolve().parent)
 #: Directory of the study results (JSON lines, summaries).
-RESULTS = pathlib.Path(__file__).resolve().parent / "results"
+RESULTS = ROOT / "results"
 #: Directory of the study figures.
-FIGURES = pathlib.Path(__file__).resolve().parent / "figures"
+FIGURES = ROOT / "figures"
 
 
 def provenance(script: str, argv, wall_s: float) -> dict:

@@ -29,7 +29,7 @@ import arviz as az
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _study import append_jsonl, provenance  # noqa: E402
+from _study import RESULTS, append_jsonl, provenance  # noqa: E402
 
 from heli_uq.inference import prepare_start, run_nuts  # noqa: E402
 from heli_uq.model import EFFECTS, TABLE1, TABLE2, build_model  # noqa: E402
@@ -112,7 +112,7 @@ def main(argv=None) -> int:
     ap.add_argument("--warmup", type=int, default=400)
     ap.add_argument("--draws", type=int, default=400)
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--out", default="studies/results/effect_recovery.jsonl")
+    ap.add_argument("--out", default=str(RESULTS / "effect_recovery.jsonl"))
     args = ap.parse_args(argv)
     import numpyro
 

@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _study import append_jsonl, provenance  # noqa: E402
+from _study import RESULTS, append_jsonl, provenance  # noqa: E402
 
 from heli_uq.data import load_data, parse_window  # noqa: E402
 from heli_uq.inference import prepare_start  # noqa: E402
@@ -108,7 +108,7 @@ def main(argv=None) -> int:
     ap.add_argument("--effects", nargs="+", default=sorted(EFFECTS), choices=sorted(EFFECTS))
     ap.add_argument("--starts", type=int, default=4, help="MAP starts per model (default 4)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", default="studies/results/effects_on_rig.jsonl")
+    ap.add_argument("--out", default=str(RESULTS / "effects_on_rig.jsonl"))
     args = ap.parse_args(argv)
     record = load_data(args.data)
     if args.window:

@@ -218,13 +218,15 @@ def _run_round(tasks: dict, store: _Store, record, scheduler, log) -> dict:
     if done:
         log(f"reusing {len(done)} stored fit(s): {', '.join(done)}")
     todo = {k: t for k, t in tasks.items() if k not in done}
+    count = iter(range(1, len(todo) + 1))
 
     def finished(key, result):
+        step = f"  [{next(count)}/{len(todo)}] {key}:"
         if isinstance(result, TaskFailed):
-            log(f"  {key}: failed ({result['error']})")
+            log(f"{step} failed ({result['error']})")
             return
         store.save(key, sigs[key], result)
-        log(f"  {key}: fitted in {result['seconds']:.0f} s, held-out psi RMSE "
+        log(f"{step} fitted in {result['seconds']:.0f} s, held-out psi RMSE "
             f"{result['score']['rmse_psi']:.3f} rad")  # fmt: skip
 
     if todo:

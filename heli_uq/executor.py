@@ -15,8 +15,13 @@ Schedulers
     In this process, one task after another (tests, debugging, one-core machines).
 an address (``tcp://host:8786``)
     An existing Dask scheduler (``Client(address)``); its workers must have ``heli_uq``.
+    An address where nothing answers within :data:`CONNECT_TIMEOUT` is a
+    :class:`~heli_uq.errors.ParameterError`.
 
-Layer 0: imports nothing else of the package.
+A task whose worker process dies (Dask gives up on it after its retries) becomes a
+:class:`TaskFailed` like a task that raised; the others go on.
+
+Layer 0: imports only :mod:`heli_uq.errors` (layer 0).
 """
 
 from __future__ import annotations
@@ -30,6 +35,8 @@ __all__ = ["run_tasks", "TaskFailed", "CACHE_ENV", "default_workers"]
 
 #: Environment variable (read by JAX) naming the persistent compilation cache directory.
 CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
+#: How long :func:`run_tasks` tries to reach a scheduler given by its address.
+CONNECT_TIMEOUT = "10s"
 
 
 class TaskFailed(dict):
@@ -59,6 +66,23 @@ def _share_compilation_cache() -> None:
         os.environ[CACHE_ENV] = str(path)
 
 
+def _connect(address: str):
+    """A client of the Dask scheduler at ``address``, or one clear error within
+    :data:`CONNECT_TIMEOUT` (instead of a long hang)."""
+    from dask.distributed import Client
+
+    from heli_uq.errors import ParameterError
+
+    try:
+        return Client(address, timeout=CONNECT_TIMEOUT)
+    except (OSError, TimeoutError, ValueError, MemoryError) as exc:
+        # MemoryError: something that is not a Dask scheduler answered (its reply was read
+        # as a frame length of exabytes).
+        raise ParameterError(f"scheduler: cannot reach a Dask scheduler at {address!r} within "
+                             f"{CONNECT_TIMEOUT} ({type(exc).__name__}: {exc}); expected 'local', "
+                             "'serial' or the address of a running scheduler") from None  # fmt: skip
+
+
 def run_tasks(fn: Callable, tasks: Mapping, *, scheduler: str | None = "local", workers: int | None = None,
               on_result: Callable | None = None) -> dict:  # fmt: skip
     """``{key: fn(arg)}`` for ``tasks = {key: arg}``, each task independent.
@@ -80,7 +104,13 @@ def run_tasks(fn: Callable, tasks: Mapping, *, scheduler: str | None = "local", 
     Returns
     -------
     dict
-        ``{key: result}``; a task that raised gives a :class:`TaskFailed`.
+        ``{key: result}``; a task that raised, or whose worker died, gives a
+        :class:`TaskFailed`.
+
+    Raises
+    ------
+    heli_uq.errors.ParameterError
+        ``scheduler`` is an address where no scheduler answers within :data:`CONNECT_TIMEOUT`.
     """
     keys = list(tasks)
     results = {}
@@ -108,12 +138,16 @@ def run_tasks(fn: Callable, tasks: Mapping, *, scheduler: str | None = "local", 
                                    processes=True, dashboard_address=":0")  # fmt: skip
             client = Client(cluster)
         else:
-            cluster, client = None, Client(scheduler)
+            cluster, client = None, _connect(scheduler)
         try:
             futures = {client.submit(_guarded, fn, tasks[k], key=f"heli_uq-{k}-{os.getpid()}",
                                      pure=False): k for k in keys}  # fmt: skip
             for future in as_completed(futures):
-                finish(futures[future], future.result())
+                try:
+                    result = future.result()
+                except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: its worker died
+                    result = TaskFailed(error=f"{type(exc).__name__}: {exc}")
+                finish(futures[future], result)
         finally:
             client.close()
             if cluster is not None:

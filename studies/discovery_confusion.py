@@ -73,7 +73,7 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         res = discover(rec, tmp, train=(0.0, split), test=(split, args.seconds), budget=args.budget,
-                       seed=seed, scheduler=args.scheduler, log=lambda m: None)  # fmt: skip
+                       seed=seed, scheduler=args.scheduler, candidates=args.candidates)  # fmt: skip
     named = "none" if res["effect"] == "none" else f"{res['axis']}:{res['effect']}"
     covered = {}
     if named == case and model.effects:
@@ -119,9 +119,16 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=131.0)
     ap.add_argument("--budget", default="quick", choices=["quick", "full"])
     ap.add_argument("--scheduler", default="local")
+    ap.add_argument("--candidates", nargs="+", default=None, metavar="AXIS:EFFECT",
+                    help="effects to try (default: every effect on each axis)")
+    ap.add_argument("--quiet", action="store_true", help="no progress lines")
     ap.add_argument("--out", default=str(RESULTS / "discovery_confusion.jsonl"))
     args = ap.parse_args(argv)
     import numpyro
+
+    from heli_uq.log import configure_cli
+
+    configure_cli(args.quiet)  # discover's progress lines on stdout
 
     numpyro.set_host_device_count(4)
     for seed in args.seeds:

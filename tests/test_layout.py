@@ -13,7 +13,7 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "heli_uq"
 LAYERS = {
     "_jax_config": 0, "errors": 0, "io": 0, "figure": 0, "log": 0,
     "data": 1, "model": 2, "simulation": 3, "probability": 4, "inference": 5,
-    "identifiability": 6, "output": 7, "discovery": 8, "design": 8, "cli": 9, "executor": 0,
+    "identifiability": 6, "output": 7, "discovery": 8, "design": 8, "calibration": 8, "cli": 9, "executor": 0,
 }  # fmt: skip
 
 
@@ -71,7 +71,7 @@ def test_the_check_catches_an_upward_import(tmp_path):
 @pytest.mark.parametrize("package", ["heli_uq", "heli_uq.data", "heli_uq.model", "heli_uq.simulation",
                                      "heli_uq.probability", "heli_uq.inference",
                                      "heli_uq.identifiability", "heli_uq.output",
-                                     "heli_uq.discovery"])  # fmt: skip
+                                     "heli_uq.discovery", "heli_uq.calibration"])  # fmt: skip
 def test_curated_api(package):
     module = importlib.import_module(package)
     missing = [n for n in module.__all__ if not hasattr(module, n)]

@@ -29,10 +29,11 @@ def cmd_discover(args) -> int:
     if window is not None and train is not None:
         raise ParameterError("--window cannot be combined with --train/--test")
     base = [s.strip() for s in (args.base_effects or "").split(",") if s.strip()]
+    candidates = [s.strip() for s in (args.candidates or "").split(",") if s.strip()] or None
     out = out_dir(args.out)
     result = discover(record, out, window=window, train=train, test=test, base_effects=base,
                       budget=args.budget, max_effects=args.max_effects, seed=args.seed,
-                      scheduler=args.scheduler)  # fmt: skip
+                      scheduler=args.scheduler, candidates=candidates)  # fmt: skip
     print(json.dumps({k: result[k] for k in ("effect", "axis", "parameters")}))
     print(f"wrote {out / 'discovery.json'}, report.md, bands_before.png, bands_after.png, "
           "residuals.png, candidates.png")  # fmt: skip
@@ -71,6 +72,8 @@ def add_parser(subparsers):
     p.add_argument("--test", metavar="C:D", default=None, help="held-out scoring window [s]")
     p.add_argument("--base-effects", metavar="AXIS:EFFECT,...", default=None,
                    help="effects already in the base model (default: none)")
+    p.add_argument("--candidates", metavar="AXIS:EFFECT,...", default=None,
+                   help="effects to try (default: every effect of the vocabulary on each axis)")
     p.add_argument("--budget", choices=["quick", "full"], default="quick",
                    help="effort (default: quick)")
     p.add_argument("--max-effects", type=int, default=1,

@@ -1,0 +1,463 @@
+"""Simulation-based calibration (SBC) of the package's NUTS posterior on synthetic records.
+
+For each replicate ``r``: draw the paper's 12 parameters from the study prior (log-normal,
+sigma_log ``prior_sd`` around Table 1; h ~ normal(0, ``h_sd``) or fixed at 0; g fixed),
+one residual scale [rad] for both angles from the model's ``sigma`` prior
+(:data:`heli_uq.probability.priors.SIGMA_PRIOR`), simulate a ``duration`` s record with
+random step inputs (:func:`heli_uq.simulation.synthetic_experiment`) and iid noise, run
+the package's NUTS (MAP start, Laplace mass matrix) under the *same* parameter prior, and
+record the rank of the true value of every sampled coordinate (the identifiable ratios of
+:mod:`heli_uq.probability.coordinates`) among ``ranks`` thinned draws, and whether the
+central 90 % interval of the draws covers it.  If the posterior is calibrated, every rank
+is uniform on ``0..L`` and every 90 % interval covers the truth in 90 % of replicates.
+
+A failed simulation of a prior draw is redrawn: the model gives such parameters zero
+posterior mass (``solver_ok``), so the generating and the inference prior are the same
+truncated prior.  The package's model centres the initial-angle prior on the first
+measurement; the truth is drawn around the synthetic default start instead, so the two
+priors differ whenever the noise sigma is not small next to ``X0_ANGLE_SD``.
+``x0_prior="generator"`` (use it for SBC) gives the model explicit initial-angle priors
+``normal(SYNTHETIC_X0, X0_ANGLE_SD)`` so the generating and the inference prior agree;
+``"data"`` keeps the package's data-centred prior.  The generator draws *one* residual
+scale for both angles, the model has independent ``sigma_theta`` and ``sigma_psi``
+priors; only the model parameters' coordinates are ranked.
+
+Replicates are independent tasks of :func:`heli_uq.executor.run_tasks` (a Dask cluster
+of worker processes, or serial).  Replicate ``r``'s randomness depends only on ``r`` and
+the settings, so every scheduler gives the same replicates.  Each replicate is saved to
+``out_dir/rep_XXXX.json`` as it finishes, and a rerun skips it (resume).
+
+Layer 8 (imports everything below it except discovery and design).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import tempfile
+import time
+from collections.abc import Callable, Iterable
+
+import jax
+import numpy as np
+from scipy import stats
+
+from heli_uq.errors import DataFormatError, ParameterError
+from heli_uq.executor import TaskFailed, run_tasks
+from heli_uq.inference import prepare_start, run_nuts
+from heli_uq.io import atomic_write_text
+from heli_uq.log import progress_log
+from heli_uq.model import TABLE1, HeliModel, Prior
+from heli_uq.probability import PriorSet, make_problem
+from heli_uq.probability.priors import SIGMA_PRIOR, X0_ANGLE_SD, X0_RATE_SD
+from heli_uq.simulation import SYNTHETIC_X0, synthetic_experiment
+
+__all__ = ["SBCSettings", "study_priors", "draw_replicate", "run_replicate", "run_sbc",
+           "load_replicates", "summarise", "rank_bins", "SETTINGS_FILE", "FAILED_FILE",
+           "COVERAGE_LEVEL", "RANK_BINS"]  # fmt: skip
+
+#: The model of the study: the paper's (12 parameters, no effects).
+MODEL = HeliModel()
+#: Initial-state entries whose prior ``x0_prior="generator"`` centres on SYNTHETIC_X0.
+X0_ANGLES = ("theta0", "psi0")
+#: Prior draws tried per replicate before giving up (a draw whose simulation fails, or
+#: whose angles leave |angle| < MAX_ANGLE [rad], is redrawn).
+MAX_REDRAWS = 100
+MAX_ANGLE = 50.0
+#: Central posterior interval whose coverage of the truth is recorded.
+COVERAGE_LEVEL = 0.90
+#: Bins of the rank histograms (chi-square test and figure).
+RANK_BINS = 10
+#: The settings of a run directory (a rerun under other settings is refused).
+SETTINGS_FILE = "settings.json"
+#: Replicates whose task raised, ``{"r": "<Type>: <message>"}`` (absent when none did).
+FAILED_FILE = "failed.json"
+#: MAP starts per replicate.
+N_STARTS = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class SBCSettings:
+    """What a replicate is: the generator, the prior and the sampler.
+
+    Attributes
+    ----------
+    duration : float
+        Length of each synthetic record [s] (sample time 0.01 s).
+    prior_sd : float
+        sigma_log of the log-normal priors around Table 1.
+    h_sd : float
+        Prior sd of h [m]; 0 fixes h = 0.
+    chains, warmup, draws : int
+        NUTS chains; warm-up and kept iterations per chain.
+    adapt_mass_matrix : bool
+        Adapt the mass matrix in warm-up (False: keep the Laplace covariance).
+    map_maxiter : int
+        L-BFGS steps before the Newton polish of the MAP (0: Newton only).
+    x0_prior : {"data", "generator"}
+        Centre of the initial-angle prior: the first measurement (the package's model) or
+        the generator's centre (a consistent SBC).
+    ranks : int
+        Thinned draws the truth is ranked among (L; fewer if ``chains * draws`` is smaller).
+    """
+
+    duration: float = 5.0
+    prior_sd: float = 0.1
+    h_sd: float = 0.005
+    chains: int = 2
+    warmup: int = 200
+    draws: int = 150
+    adapt_mass_matrix: bool = False
+    map_maxiter: int = 0
+    x0_prior: str = "data"
+    ranks: int = 99
+
+    def __post_init__(self):
+        for name in ("duration", "prior_sd"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+                raise ParameterError(f"{name}: expected a positive number, found {value!r}")
+        if not (isinstance(self.h_sd, int | float) and np.isfinite(self.h_sd) and self.h_sd >= 0):
+            raise ParameterError(f"h_sd: expected a number >= 0, found {self.h_sd!r}")
+        for name, low in (("chains", 1), ("warmup", 0), ("draws", 1), ("map_maxiter", 0),
+                          ("ranks", 1)):  # fmt: skip
+            value = getattr(self, name)
+            if not (isinstance(value, int) and not isinstance(value, bool) and value >= low):
+                raise ParameterError(f"{name}: expected an integer >= {low}, found {value!r}")
+        if self.x0_prior not in ("data", "generator"):
+            raise ParameterError(f"x0_prior: expected 'data' or 'generator', found {self.x0_prior!r}")
+
+    def to_dict(self) -> dict:
+        """The settings as a JSON-ready dict."""
+        return dataclasses.asdict(self)
+
+
+def study_priors(prior_sd: float, h_sd: float, x0_prior: str = "data") -> PriorSet:
+    """The study prior: log-normal (sigma_log ``prior_sd``) around Table 1 for every
+    parameter of positive or non-negative support, ``normal(0, h_sd)`` [m] (or fixed at 0
+    when ``h_sd`` is 0) for the parameters of real support (the body-axis offset h), fixed
+    parameters (g) as the model declares them; with ``x0_prior="generator"`` the initial
+    angles' prior is ``normal(SYNTHETIC_X0, X0_ANGLE_SD)`` instead of the data-centred
+    default."""
+    changes = {}
+    for name in MODEL.names:
+        declared = MODEL.parameter(name)
+        if declared.prior.kind == "fixed":
+            continue
+        if declared.support == "real":
+            changes[name] = Prior("normal", 0.0, h_sd) if h_sd > 0 else Prior("fixed", 0.0)
+        else:
+            changes[name] = Prior("lognormal", TABLE1[name], prior_sd)
+    if x0_prior == "generator":
+        changes.update({n: Prior("normal", SYNTHETIC_X0[i], X0_ANGLE_SD)
+                        for i, n in enumerate(X0_ANGLES)})  # fmt: skip
+    return PriorSet.default(MODEL).updated(MODEL, changes, where="sbc prior")
+
+
+def draw_replicate(r: int, priors: PriorSet, duration: float):
+    """Truth and record of replicate ``r``, redrawn until the simulation is finite.
+
+    Returns
+    -------
+    truth : dict
+        Parameter name -> true value (physical units).
+    sigma : float
+        Noise sd of both angles [rad].
+    x0 : ndarray, shape (4,)
+        True initial state [rad, rad, rad/s, rad/s].
+    record : Experiment
+        ``round(duration / 0.01)`` samples.
+    redraws : int
+        Prior draws rejected before this one.
+    """
+    rng = np.random.default_rng([2026, r])
+    for attempt in range(MAX_REDRAWS):
+        truth = {n: float(priors.params[n].sample(rng)) for n in MODEL.names}
+        sigma = float(SIGMA_PRIOR.sample(rng))
+        x0 = np.array(SYNTHETIC_X0) + rng.normal(size=4) * [X0_ANGLE_SD, X0_ANGLE_SD,
+                                                           X0_RATE_SD, X0_RATE_SD]
+        try:
+            rec = synthetic_experiment(truth, x0, duration=duration, noise_std=(sigma, sigma),
+                                       seed=int(rng.integers(2**31)), model=MODEL)
+        except DataFormatError:
+            continue
+        if np.all(np.abs(rec.y) < MAX_ANGLE):
+            return truth, sigma, x0, rec, attempt
+    raise RuntimeError(f"replicate {r}: no finite prior draw in {MAX_REDRAWS} attempts")
+
+
+def _provenance(wall_s: float) -> dict:
+    import heli_uq
+
+    return {"heli_uq": heli_uq.__version__, "jax": jax.__version__, "wall_s": float(wall_s),
+            "time": time.strftime("%Y-%m-%dT%H:%M:%S")}  # fmt: skip
+
+
+def run_replicate(task) -> dict:
+    """One SBC replicate (the Dask task: top-level, its argument and result picklable).
+
+    Parameters
+    ----------
+    task : (int, SBCSettings)
+        Replicate index ``r`` (seeds its randomness) and the settings.
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``replicate``, ``truth``, ``sigma`` [rad], ``x0``, ``redraws``,
+        ``names`` (the ranked coordinates), ``L`` (draws ranked among), ``ranks``
+        (name -> rank of the truth, 0..L), ``covered90`` (name -> bool), sampler
+        statistics (``divergences``, ``mean_steps``, ``step_size``, ``start_s``,
+        ``nuts_s``, ``wall_s`` [s]), ``settings`` and ``provenance``.
+    """
+    r, settings = task
+    t_rep = time.perf_counter()
+    try:
+        priors = study_priors(settings.prior_sd, settings.h_sd, settings.x0_prior)
+        truth, sigma, x0, rec, redraws = draw_replicate(r, priors, settings.duration)
+        problem = make_problem(rec, model=MODEL, priors=priors, error="iid")
+        coords = problem.coords
+        z_true = coords.from_physical(truth)
+        names = coords.sampled_names
+        z_true = z_true[1:] if coords.marginal_scale else z_true
+        t0 = time.perf_counter()
+        with tempfile.TemporaryDirectory() as tmp:
+            start = prepare_start(problem, n_starts=N_STARTS, seed=r, map_maxiter=settings.map_maxiter)
+            t1 = time.perf_counter()
+            run = run_nuts(problem, tmp, chains=settings.chains, warmup=settings.warmup,
+                           draws=settings.draws, seed=r, progress=False, start=start,
+                           adapt_mass_matrix=settings.adapt_mass_matrix)  # fmt: skip
+        wall = time.perf_counter() - t0
+        z = np.asarray(run.samples["z"]).reshape(-1, len(names))
+        thin = max(1, z.shape[0] // settings.ranks)
+        zt = z[::thin][: settings.ranks]
+        tail = (1 - COVERAGE_LEVEL) / 2
+        out = {"replicate": r, "truth": truth, "sigma": sigma, "x0": x0.tolist(),
+               "redraws": redraws, "names": list(names), "L": int(zt.shape[0]), "wall_s": wall,
+               "divergences": int(np.sum(run.stats["diverging"])),
+               "mean_steps": float(np.mean(run.stats["num_steps"])),
+               "step_size": np.asarray(run.info["step_size"]).tolist(), "start_s": t1 - t0,
+               "nuts_s": wall - (t1 - t0), "map_grad_max": float(start.map_grad_max),
+               "map_decrement": float(start.map_decrement), "settings": settings.to_dict(),
+               "ranks": {}, "covered90": {}}  # fmt: skip
+        for i, n in enumerate(names):
+            out["ranks"][n] = int(np.sum(zt[:, i] < z_true[i]))
+            lo, hi = np.quantile(z[:, i], [tail, 1 - tail])
+            out["covered90"][n] = bool(lo <= z_true[i] <= hi)
+        out["provenance"] = _provenance(time.perf_counter() - t_rep)
+        return out
+    finally:
+        # Every replicate compiles new closures (its data are constants of the jitted
+        # functions); without this a long run exhausts memory in LLVM compilation.
+        jax.clear_caches()
+
+
+def _rep_path(out: pathlib.Path, r: int) -> pathlib.Path:
+    return out / f"rep_{r:04d}.json"
+
+
+def _stored_settings(out: pathlib.Path) -> tuple[dict, pathlib.Path] | tuple[None, None]:
+    """The settings a directory was run with: ``settings.json``, else those recorded in its
+    first replicate (directories written before ``settings.json`` existed)."""
+    path = out / SETTINGS_FILE
+    if path.exists():
+        return json.loads(path.read_text()), path
+    for rep in sorted(out.glob("rep_*.json")):
+        stored = json.loads(rep.read_text()).get("settings")
+        if stored is not None:
+            return stored, rep
+    return None, None
+
+
+def _check_settings(out: pathlib.Path, settings: SBCSettings) -> None:
+    """Refuse to add replicates to ``out`` under settings other than its own; record them
+    on the first run."""
+    stored, where = _stored_settings(out)
+    now = settings.to_dict()
+    if stored is None:
+        atomic_write_text(out / SETTINGS_FILE, json.dumps(now, indent=1))
+        return
+    differ = [f"{k} (stored {stored[k]!r}, requested {now[k]!r})" for k in now
+              if k in stored and stored[k] != now[k]]  # fmt: skip
+    if differ:
+        raise ParameterError(f"{out}: the replicates there were run with other settings ({where.name}): "
+                             f"{'; '.join(differ)}; use another output directory or the same "
+                             "settings")  # fmt: skip
+    if where.name != SETTINGS_FILE:
+        atomic_write_text(out / SETTINGS_FILE, json.dumps({**stored, **now}, indent=1))
+
+
+def load_replicates(out_dir, replicates: Iterable[int] | None = None) -> list[dict]:
+    """The stored replicates of ``out_dir`` (all, or those of ``replicates``), by index.
+
+    Raises
+    ------
+    ParameterError
+        When the replicates rank different coordinates (written by different package
+        versions: they cannot be summarised together).
+    """
+    out = pathlib.Path(out_dir)
+    if replicates is None:
+        paths = sorted(out.glob("rep_*.json"))
+    else:
+        paths = [p for r in sorted(set(replicates)) if (p := _rep_path(out, r)).exists()]
+    reps = [json.loads(p.read_text()) for p in paths]
+    if len({tuple(r["names"]) for r in reps}) > 1:
+        raise ParameterError(f"{out}: the replicates have different coordinates (written by different "
+                             "package versions); keep them in separate output directories")  # fmt: skip
+    return reps
+
+
+def run_sbc(out_dir, settings: SBCSettings, replicates: int | Iterable[int], *, scheduler="local",
+            workers: int | None = None, log: Callable[[str], None] | None = None) -> list[dict]:  # fmt: skip
+    """Run the SBC replicates not yet stored in ``out_dir``; every stored one is returned.
+
+    Parameters
+    ----------
+    out_dir : path
+        Receives ``settings.json``, one ``rep_XXXX.json`` per finished replicate (written
+        atomically as it finishes, so an interrupted run keeps it) and ``failed.json``
+        (``{r: error}``) while any replicate has failed.
+    settings : SBCSettings
+        Must equal the settings ``out_dir`` was first run with.
+    replicates : int or iterable of int
+        ``n`` (replicates ``0..n-1``) or the replicate indices.
+    scheduler : {"local", "serial"} or str
+        See :func:`heli_uq.executor.run_tasks` (a Dask cluster address also works).
+    workers : int, optional
+        Worker processes of the local cluster (default: one per core, at most one per
+        replicate to run).
+    log : callable, optional
+        Progress messages (default: the ``logging`` INFO of this module).
+
+    Returns
+    -------
+    list of dict
+        The stored replicates among ``replicates`` (see :func:`run_replicate`), by index;
+        failed ones are missing (and listed in ``failed.json`` and the log).
+
+    Raises
+    ------
+    ParameterError
+        ``out_dir`` holds replicates run under other settings (the differing fields are
+        named), or bad ``replicates``/``workers``.
+    """
+    log = progress_log(log, __name__)
+    if not isinstance(settings, SBCSettings):
+        raise ParameterError(f"settings: expected an SBCSettings, found {type(settings).__name__}")
+    wanted = list(range(replicates)) if isinstance(replicates, int) else sorted(set(replicates))
+    if any(not isinstance(r, int | np.integer) or r < 0 for r in wanted):
+        raise ParameterError(f"replicates: expected a count or non-negative indices, found {replicates!r}")
+    if workers is not None and not (isinstance(workers, int) and workers >= 1):
+        raise ParameterError(f"workers: expected an integer >= 1, found {workers!r}")
+    out = pathlib.Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    _check_settings(out, settings)
+    failed_path = out / FAILED_FILE
+    failed = json.loads(failed_path.read_text()) if failed_path.exists() else {}
+    todo = [int(r) for r in wanted if not _rep_path(out, r).exists()]
+    if len(todo) < len(wanted):
+        log(f"{out}: reusing {len(wanted) - len(todo)} stored replicate(s)")
+    t0 = time.perf_counter()
+    done = []
+
+    def finished(r, result):
+        if isinstance(result, TaskFailed):
+            failed[str(r)] = result["error"]
+            log(f"replicate {r}: FAILED ({result['error']})")
+        else:
+            atomic_write_text(_rep_path(out, r), json.dumps(result))
+            failed.pop(str(r), None)
+            done.append(r)
+            log(f"replicate {r}: {result['wall_s']:.0f} s, {result['divergences']} divergences, "
+                f"{result['mean_steps']:.0f} steps [{len(done)}/{len(todo)} in "
+                f"{time.perf_counter() - t0:.0f} s]")  # fmt: skip
+        if failed:
+            atomic_write_text(failed_path, json.dumps(failed, indent=1, sort_keys=True))
+        elif failed_path.exists():
+            failed_path.unlink()
+
+    if todo:
+        n_workers = None if workers is None else min(workers, len(todo))
+        how = ("serial" if scheduler == "serial"
+               else f"Dask ({scheduler or 'local'}, workers: {n_workers or 'auto'})")  # fmt: skip
+        log(f"{out}: running {len(todo)} replicate(s), {how}")
+        run_tasks(run_replicate, {r: (r, settings) for r in todo}, scheduler=scheduler,
+                  workers=n_workers, on_result=finished)  # fmt: skip
+    still = sorted(int(r) for r in failed if int(r) in wanted)
+    if still:
+        log(f"{out}: {len(still)} replicate(s) failed: {still} (see {FAILED_FILE}; a rerun retries them)")
+    return load_replicates(out, wanted)
+
+
+def rank_bins(big_l: int, bins: int = RANK_BINS) -> tuple[np.ndarray, np.ndarray]:
+    """Histogram edges of ranks ``0..big_l`` and the probability of each bin under uniform
+    ranks (exact also when ``big_l + 1`` is not a multiple of ``bins``).
+
+    Returns
+    -------
+    edges : ndarray, shape (bins + 1,)
+    prob : ndarray, shape (bins,)
+        Sums to 1.
+    """
+    bins = min(bins, big_l + 1)
+    edges = np.linspace(0, big_l + 1, bins + 1)
+    prob = np.histogram(np.arange(big_l + 1), edges)[0] / (big_l + 1)
+    return edges, prob
+
+
+def summarise(reps: list[dict], bins: int = RANK_BINS) -> dict:
+    """Coverage and rank uniformity of SBC replicates.
+
+    Parameters
+    ----------
+    reps : list of dict
+        Replicates (:func:`run_replicate`), all with the same ``names``.
+    bins : int
+        Rank histogram bins of the chi-square test.
+
+    Returns
+    -------
+    dict
+        ``replicates``, ``L`` (smallest of the replicates; larger ranks are clipped to it),
+        ``quantities``: name -> ``coverage90`` (fraction of replicates whose central 90 %
+        interval covers the truth) and ``chi2_pvalue`` (chi-square test of uniform ranks
+        over ``bins`` bins), the coverage averaged over the quantities overall
+        (``coverage90_mean_over_quantities``) and split by the noise level
+        (``coverage90_sigma_below_x0_sd`` / ``..._above_...``: replicates with
+        ``sigma < X0_ANGLE_SD`` or not), and sampler statistics (``divergences_total``,
+        ``mean_steps``, ``wall_s_mean`` [s], ``step_size_mean``, ``map_grad_max_max``).
+    """
+    if not reps:
+        raise ParameterError("summarise: no replicates")
+    names = reps[0]["names"]
+    big_l = min(r["L"] for r in reps)
+    n = len(reps)
+    edges, prob = rank_bins(big_l, bins)
+    summary = {"replicates": n, "L": big_l, "quantities": {}}
+    for name in names:
+        ranks = np.array([min(r["ranks"][name], big_l) for r in reps])
+        counts = np.histogram(ranks, edges)[0]
+        p = stats.chisquare(counts, n * prob).pvalue
+        cov = float(np.mean([r["covered90"][name] for r in reps]))
+        summary["quantities"][name] = {"coverage90": cov, "chi2_pvalue": float(p)}
+
+    def mean_cov(group):
+        return float(np.mean([[r["covered90"][q] for q in names] for r in group])) if group else None
+
+    # Split by noise level: with x0_prior="data" the model centres the initial-angle prior
+    # on the first (noisy) measurement and the generator does not, so the two priors differ
+    # when sigma is not small next to X0_ANGLE_SD.
+    low = [r for r in reps if r["sigma"] < X0_ANGLE_SD]
+    high = [r for r in reps if r["sigma"] >= X0_ANGLE_SD]
+    for label, group in (("sigma_below_x0_sd", low), ("sigma_above_x0_sd", high)):
+        summary[f"coverage90_{label}"] = {"replicates": len(group), "mean_over_quantities": mean_cov(group)}
+    summary["coverage90_mean_over_quantities"] = mean_cov(reps)
+    summary["divergences_total"] = int(sum(r["divergences"] for r in reps))
+    summary["mean_steps"] = float(np.mean([r["mean_steps"] for r in reps]))
+    summary["wall_s_mean"] = float(np.mean([r["wall_s"] for r in reps]))
+    summary["step_size_mean"] = float(np.mean([np.mean(r.get("step_size", np.nan)) for r in reps]))
+    summary["map_grad_max_max"] = float(max(r.get("map_grad_max", np.nan) for r in reps))
+    summary["settings"] = reps[0].get("settings")
+    return summary

@@ -1,0 +1,209 @@
+"""Simulation-based calibration (heli_uq.calibration): the Dask and the serial scheduler
+give the same replicates, a rerun resumes (and refuses other settings), a failing
+replicate is reported while the others finish, and the rank statistics tell uniform
+ranks from broken ones."""
+
+import json
+import os
+
+import jax
+import numpy as np
+import pytest
+
+from heli_uq.calibration import sbc
+from heli_uq.calibration.sbc import SBCSettings, run_sbc, summarise
+from heli_uq.errors import ParameterError
+from heli_uq.probability.priors import X0_ANGLE_SD
+
+#: The smallest useful replicate: a short record, one short chain, 19 ranked draws.
+TINY = SBCSettings(duration=1.5, h_sd=0.0, chains=1, warmup=30, draws=20, ranks=19,
+                   x0_prior="generator")  # fmt: skip
+#: Replicates run by both schedulers.
+REPLICATES = 2
+#: The same replicate computed in another process may differ in the last bits (XLA's
+#: floating-point order is the same program, so it should not; this bounds it).
+SAME_PROCESS_RTOL = 1e-9
+#: Replicates of the synthetic rank-statistics case, and its ranked draws.
+N_SYNTHETIC = 200
+L_SYNTHETIC = 19
+#: Chi-square p-value below which ranks are called non-uniform (and above which uniform
+#: ones must stay).
+P_REJECT = 1e-3
+#: Coverage of exactly uniform ranks with the 90 % interval's flags set from the ranks.
+COVERAGE_TOL = 0.05
+
+
+@pytest.fixture(scope="module")
+def serial_run(tmp_path_factory):
+    """Replicates 0 and 1 of TINY, serial, in this process (also fills the persistent
+    compilation cache that the Dask workers then read)."""
+    out = tmp_path_factory.mktemp("sbc_serial")
+    return out, run_sbc(out, TINY, REPLICATES, scheduler="serial")
+
+
+def _comparable(rep):
+    """The parts of a replicate that do not depend on timing."""
+    drop = {"wall_s", "start_s", "nuts_s", "provenance"}
+    return {k: v for k, v in rep.items() if k not in drop}
+
+
+@pytest.mark.slow  # ~100 s cold (every replicate compiles its own programs), ~40 s with a warm cache
+@pytest.mark.xdist_group("sbc_run")
+def test_dask_and_serial_give_the_same_replicates(serial_run, tmp_path, monkeypatch):
+    """Two spawned Dask workers compute replicates 0 and 1 exactly as the serial path does:
+    a replicate's randomness depends only on its index and the settings."""
+    # the workers share this process's persistent compilation cache (conftest.py)
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", jax.config.jax_compilation_cache_dir)
+    monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+    monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+    _, serial = serial_run
+    dask = run_sbc(tmp_path, TINY, REPLICATES, scheduler="local", workers=2)
+    assert [r["replicate"] for r in serial] == [r["replicate"] for r in dask] == list(range(REPLICATES))
+    for s, d in zip(serial, dask):
+        assert s["L"] == TINY.ranks
+        assert s["ranks"] == d["ranks"] and s["covered90"] == d["covered90"]
+        assert all(0 <= v <= s["L"] for v in s["ranks"].values())
+        np.testing.assert_allclose(d["step_size"], s["step_size"], rtol=SAME_PROCESS_RTOL)
+        assert _comparable(s).keys() == _comparable(d).keys()
+        assert s["truth"] == d["truth"] and s["sigma"] == d["sigma"]
+    # the two replicates differ (the index seeds them)
+    assert serial[0]["truth"] != serial[1]["truth"]
+
+
+def _fake_replicate(task):
+    """A replicate that takes no time: ranks follow the index."""
+    r, settings = task
+    return {"replicate": r, "names": ["a", "b"], "L": settings.ranks, "sigma": 0.01,
+            "ranks": {"a": r, "b": settings.ranks - r}, "covered90": {"a": True, "b": False},
+            "settings": settings.to_dict(), "wall_s": 0.0, "divergences": 0, "mean_steps": 3.0}  # fmt: skip
+
+
+def test_a_rerun_reuses_stored_replicates_and_refuses_other_settings(tmp_path, monkeypatch):
+    monkeypatch.setattr(sbc, "run_replicate", _fake_replicate)
+    first = run_sbc(tmp_path, TINY, 3, scheduler="serial")
+    assert [r["replicate"] for r in first] == [0, 1, 2]
+    stamps = {p.name: p.stat().st_mtime_ns for p in tmp_path.glob("rep_*.json")}
+    assert len(stamps) == 3
+    assert json.loads((tmp_path / sbc.SETTINGS_FILE).read_text()) == TINY.to_dict()
+
+    def must_not_run(task):
+        raise AssertionError(f"replicate {task[0]} recomputed")
+
+    monkeypatch.setattr(sbc, "run_replicate", must_not_run)
+    again = run_sbc(tmp_path, TINY, 3, scheduler="serial")
+    assert again == first
+    assert {p.name: p.stat().st_mtime_ns for p in tmp_path.glob("rep_*.json")} == stamps
+    # a larger count runs only the new replicate
+    monkeypatch.setattr(sbc, "run_replicate", _fake_replicate)
+    assert len(run_sbc(tmp_path, TINY, 4, scheduler="serial")) == 4
+    assert {p.name: p.stat().st_mtime_ns for p in tmp_path.glob("rep_*.json") if p.name in stamps} == stamps
+
+    changed = SBCSettings(**{**TINY.to_dict(), "warmup": TINY.warmup + 1, "x0_prior": "data"})
+    with pytest.raises(ParameterError, match=r"warmup \(stored 30, requested 31\).*x0_prior"):
+        run_sbc(tmp_path, changed, 4, scheduler="serial")
+    assert len(list(tmp_path.glob("rep_*.json"))) == 4
+
+
+def test_settings_of_an_older_directory_come_from_its_replicates(tmp_path, monkeypatch):
+    """A directory written before settings.json existed is checked against the settings
+    recorded in its replicates."""
+    monkeypatch.setattr(sbc, "run_replicate", _fake_replicate)
+    run_sbc(tmp_path, TINY, 1, scheduler="serial")
+    os.remove(tmp_path / sbc.SETTINGS_FILE)
+    with pytest.raises(ParameterError, match=r"rep_0000\.json.*duration"):
+        run_sbc(tmp_path, SBCSettings(**{**TINY.to_dict(), "duration": 2.0}), 1, scheduler="serial")
+
+
+def test_a_failing_replicate_is_reported_and_the_others_finish(tmp_path, monkeypatch):
+    """Replicate 1 raises; replicates 0 and 2 are still stored, the failure is logged and
+    kept in failed.json, and a rerun that succeeds retries it and clears the file."""
+    def broken(task):
+        if task[0] == 1:
+            raise RuntimeError("injected failure")
+        return _fake_replicate(task)
+
+    monkeypatch.setattr(sbc, "run_replicate", broken)
+    messages = []
+    reps = run_sbc(tmp_path, TINY, 3, scheduler="serial", log=messages.append)
+    assert [r["replicate"] for r in reps] == [0, 2]
+    failed = json.loads((tmp_path / sbc.FAILED_FILE).read_text())
+    assert list(failed) == ["1"] and "RuntimeError: injected failure" in failed["1"]
+    assert any("replicate 1: FAILED" in m and "injected failure" in m for m in messages)
+    assert any("1 replicate(s) failed: [1]" in m for m in messages)
+    monkeypatch.setattr(sbc, "run_replicate", _fake_replicate)
+    assert [r["replicate"] for r in run_sbc(tmp_path, TINY, 3, scheduler="serial")] == [0, 1, 2]
+    assert not (tmp_path / sbc.FAILED_FILE).exists()
+
+
+def _synthetic(ranks, sigmas):
+    """Replicate dicts with the given ranks of one quantity; covered90 is what the ranks
+    imply (the truth inside the central 90 % of the L draws)."""
+    lo, hi = 0.05 * L_SYNTHETIC, 0.95 * L_SYNTHETIC
+    return [{"names": ["q"], "L": L_SYNTHETIC, "sigma": float(s), "ranks": {"q": int(k)},
+             "covered90": {"q": bool(lo < k < hi)}, "divergences": 0, "mean_steps": 1.0,
+             "wall_s": 1.0} for k, s in zip(ranks, sigmas)]  # fmt: skip
+
+
+def test_summary_tells_uniform_ranks_from_broken_ones():
+    rng = np.random.default_rng(0)
+    sigmas = np.where(np.arange(N_SYNTHETIC) % 2, X0_ANGLE_SD / 5, X0_ANGLE_SD * 4)  # half below
+    uniform = summarise(_synthetic(rng.integers(0, L_SYNTHETIC + 1, N_SYNTHETIC), sigmas))
+    q = uniform["quantities"]["q"]
+    assert q["chi2_pvalue"] > P_REJECT
+    assert q["coverage90"] == pytest.approx(0.9, abs=COVERAGE_TOL)
+    assert uniform["replicates"] == N_SYNTHETIC and uniform["L"] == L_SYNTHETIC
+
+    zeros = summarise(_synthetic(np.zeros(N_SYNTHETIC, int), sigmas))
+    assert zeros["quantities"]["q"]["chi2_pvalue"] < P_REJECT
+    assert zeros["quantities"]["q"]["coverage90"] == 0.0
+    # too narrow a posterior: ranks pile up at both ends, the mean rank stays central
+    ends = summarise(_synthetic(np.tile([0, L_SYNTHETIC], N_SYNTHETIC // 2), sigmas))
+    assert ends["quantities"]["q"]["chi2_pvalue"] < P_REJECT
+
+    # the noise split: broken ranks only in the high-noise replicates
+    mixed_ranks = np.where(sigmas < X0_ANGLE_SD, L_SYNTHETIC // 2, 0)
+    mixed = summarise(_synthetic(mixed_ranks, sigmas))
+    half = N_SYNTHETIC // 2
+    assert mixed["coverage90_sigma_below_x0_sd"] == {"replicates": half, "mean_over_quantities": 1.0}
+    assert mixed["coverage90_sigma_above_x0_sd"] == {"replicates": half, "mean_over_quantities": 0.0}
+    assert mixed["coverage90_mean_over_quantities"] == 0.5
+
+
+def test_exactly_uniform_ranks_pass_also_when_bins_do_not_divide_the_ranks():
+    """L + 1 = 20 ranks in 7 bins: equal expected counts would reject exactly uniform
+    ranks; the expected counts follow the number of ranks per bin."""
+    ranks = np.tile(np.arange(L_SYNTHETIC + 1), 50)
+    summary = summarise(_synthetic(ranks, np.full(ranks.size, 0.01)), bins=7)
+    assert summary["quantities"]["q"]["chi2_pvalue"] == pytest.approx(1.0)
+
+
+def test_bad_settings_and_requests_are_refused(tmp_path):
+    with pytest.raises(ParameterError, match="x0_prior"):
+        SBCSettings(x0_prior="prior")
+    with pytest.raises(ParameterError, match="ranks"):
+        SBCSettings(ranks=0)
+    with pytest.raises(ParameterError, match="workers"):
+        run_sbc(tmp_path, TINY, 1, workers=0)
+
+
+def test_the_script_plots_and_summarises_stored_replicates(tmp_path, monkeypatch):
+    """studies/sbc.py --plot reads the replicates, writes the figure and a summary with
+    provenance."""
+    import importlib.util
+    import pathlib
+
+    monkeypatch.setattr(sbc, "run_replicate", _fake_replicate)
+    run_sbc(tmp_path, TINY, 4, scheduler="serial")
+    path = pathlib.Path(__file__).resolve().parents[1] / "studies" / "sbc.py"
+    spec = importlib.util.spec_from_file_location("sbc_script", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    fig = tmp_path / "ranks.png"
+    assert script.main(["--out", str(tmp_path), "--plot", "--fig", str(fig)]) == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["replicates"] == 4 and summary["provenance"]["argv"][0] == "sbc.py"
+    assert fig.stat().st_size > 0
+    # a rerun under other settings is one error line, exit code 2
+    assert script.main(["--out", str(tmp_path), "--replicates", "4", "--warmup", "31",
+                        "--h-sd", "0", "--chains", "1", "--draws", "20", "--ranks", "19",
+                        "--x0-prior", "generator", "--duration", "1.5", "--scheduler", "serial"]) == 2

@@ -89,6 +89,7 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
         f"{u[0]},{u[1]},{y[0]},{y[1]},{0.01 if i == 0 else ''}" for i, (u, y) in enumerate(zip(rec.u, rec.y))]
     atomic_write_text(csv, "\n".join(lines) + "\n")
     for argv, needle in ((["--base-effects", "yaw:stiction"], "unknown effect 'stiction'"),
+                         (["--candidates", "yaw:torque_offset,yaw:stiction"], "unknown effect 'stiction'"),
                          (["--window", "0:10"], "too short"),
                          (["--train", "0:20"], "--train and --test go together"),
                          (["--max-effects", "0"], "--max-effects")):  # fmt: skip

@@ -2,6 +2,8 @@
 the projection that keeps it from absorbing the linear gains, the common-scale null
 direction, its description round trip, and a fit that learns a hidden smooth torque."""
 
+import sys
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -99,6 +101,10 @@ def test_bad_options_are_refused():
 #: A hidden quadratic motor torque on yaw [N m/V^2] (curvature in u_psi, which the
 #: linear gains cannot express).
 HIDDEN_K_Q = 0.05
+#: An Adam learning rate (in log parameters) that makes joint training blow the model up.
+BLOW_UP_LEARNING_RATE = 50.0
+#: Angle [rad] beyond which the test's loss counts a simulation as failed.
+BLOW_UP_RAD = 50.0
 NOISE = (0.003, 0.008)
 #: V [rad^2] at the truth is the noise floor sigma_theta^2 + sigma_psi^2; a trained hybrid
 #: must come within these factors of it (frozen true physics; joint training).
@@ -150,3 +156,25 @@ def test_network_gradient_matches_finite_differences():
         h = 1e-6 * max(1.0, abs(float(p[name])))
         fd = (loss({**p, name: p[name] + h}) - loss({**p, name: p[name] - h})) / (2 * h)
         np.testing.assert_allclose(float(g[name]), float(fd), rtol=1e-5, err_msg=name)
+
+
+def test_training_rejects_steps_that_blow_up_the_model(monkeypatch):
+    """Joint training with a learning rate far too large sends the model far off.  Steps
+    whose V is not finite (here: V is made NaN once an angle leaves +-BLOW_UP_RAD, as a
+    failed solve would give) are rejected, and the result is the best finite iterate: never
+    NaN parameters, never worse than the start."""
+    from heli_uq.inference import train
+    from heli_uq.probability import loss_v, make_problem
+
+    def fragile_loss_v(ys, y):
+        return jnp.where(jnp.max(jnp.abs(ys[:, :2])) > BLOW_UP_RAD, jnp.nan, loss_v(ys, y))
+
+    monkeypatch.setattr(sys.modules["heli_uq.inference.train"], "loss_v", fragile_loss_v)
+    rec = _record(seconds=10.0, seed=7)
+    item = {"effect": "neural_torque", "axis": "yaw", "hidden": 2}
+    problem = make_problem(rec, model=build_model([item]), error="iid")
+    result = train(problem, dict(RIG_FIT), RIG_FIT_X0, trainable="all", adam_steps=20, lbfgs_steps=5,
+                   learning_rate=BLOW_UP_LEARNING_RATE)
+    assert not np.all(np.isfinite(result.v_adam)), "the learning rate did not blow the model up"
+    assert np.isfinite(result.v) and result.v <= result.v_start
+    assert all(np.isfinite(v) for v in result.params.values())

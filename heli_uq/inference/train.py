@@ -121,8 +121,10 @@ def train(problem: Problem, params: Mapping, x0, *, trainable: Sequence[str] | s
     Raises
     ------
     ParameterError
-        Unknown names, a bounded parameter, bad step counts, or a non-finite ``V`` after
-        training (the start or the steps made the model blow up).
+        Unknown names, a bounded parameter, bad step counts, or a non-finite ``V`` at the
+        start.  A step whose simulation blows up (non-finite ``V`` or gradient) is
+        rejected: Adam stops at its best finite iterate, and an L-BFGS result that is not
+        finite or not better is discarded, so training never returns worse than its start.
     """
     for name, value in (("adam_steps", adam_steps), ("lbfgs_steps", lbfgs_steps)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 0:
@@ -155,26 +157,46 @@ def train(problem: Problem, params: Mapping, x0, *, trainable: Sequence[str] | s
     opt = optax.adam(learning_rate)
     grad = jax.value_and_grad(loss)
 
+    loss_at = jax.jit(loss)  # traced, so non-finite parameters give NaN instead of raising
+
     @jax.jit
     def adam(w):
+        # A step whose loss or gradient is not finite (a simulation that blew up) ends the
+        # Adam phase at the best finite iterate seen: the failed solve is a rejected step.
         def step(carry, _):
-            w, state = carry
+            w, state, best_w, best_v, stopped = carry
             value, g = grad(w)
-            updates, state = opt.update(g, state, w)
-            return (optax.apply_updates(w, updates), state), value
+            ok = jnp.isfinite(value) & jnp.all(jnp.isfinite(g)) & ~stopped
+            better = ok & (value < best_v)
+            best_w = jnp.where(better, w, best_w)
+            best_v = jnp.where(better, value, best_v)
+            updates, new_state = opt.update(g, state, w)
+            stopped = ~ok
+            w_next = jnp.where(stopped, best_w, optax.apply_updates(w, updates))
+            state = jax.tree.map(lambda old, new: jnp.where(stopped, old, new), state, new_state)
+            return (w_next, state, best_w, best_v, stopped), value
 
-        (w, _), values = jax.lax.scan(step, (w, opt.init(w)), None, length=adam_steps)
-        return w, values
+        carry = (w, opt.init(w), w, jnp.asarray(jnp.inf), jnp.asarray(False))
+        (w, _, best_w, best_v, _), values = jax.lax.scan(step, carry, None, length=adam_steps)
+        return w, values, best_w
 
-    w, v_adam = adam(w0)
+    v_start = float(loss_at(w0))
+    if not np.isfinite(v_start):
+        raise ParameterError(f"train: V is {v_start} at the start (the model blows up there); start "
+                             "closer to a fit")  # fmt: skip
+    w, v_adam, best_w = adam(w0)
+    if not float(loss_at(w)) <= float(loss_at(best_w)):  # also when loss_at(w) is NaN
+        w = best_w
     k = 0
     if lbfgs_steps:
-        w, _, k = jax.jit(lambda w: _lbfgs(loss, w, lbfgs_steps, 0.0))(w)
-    v = float(loss(w))
+        w_l, _, k = jax.jit(lambda w: _lbfgs(loss, w, lbfgs_steps, 0.0))(w)
+        if np.isfinite(v_l := float(loss_at(w_l))) and v_l <= float(loss_at(w)):
+            w = w_l
+    v = float(loss_at(w))
     if not np.isfinite(v):
         raise ParameterError(f"train: V is {v} after training (the model blew up); lower "
                              "learning_rate or start closer")  # fmt: skip
     out = {k_: float(v_) for k_, v_ in unpack(w).items()}
-    return Training(params=out, trained=names, v_start=float(loss(w0)), v=v,
+    return Training(params=out, trained=names, v_start=v_start, v=v,
                     v_adam=np.asarray(v_adam), lbfgs_steps=int(k),
                     seconds=time.perf_counter() - t0)  # fmt: skip

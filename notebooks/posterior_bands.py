@@ -6,8 +6,8 @@
 # --test 91:131 --error iid --out DIR`.
 #
 # Size: `HELI_UQ_NOTEBOOK_SIZE=small` (what the tests run) fits the first 30 s with
-# 2 chains x (150 + 150) draws; `full` (default) fits 0-91 s with 4 x (1000 + 1000),
-# about 10 min on 2 cores.  The stored outputs are those of the size printed below.
+# 2 chains x (150 + 150) draws; `full` (default) fits 0-91 s with 4 x (500 + 500), as
+# the main job `heli-uq run` does (about 5 min on 2 cores).  The stored outputs are those of the size printed below.
 
 # %%
 from _setup import SIZE, SMALL, rig_or_synthetic, shortened  # noqa: I001  (first: it sets up warnings)
@@ -22,7 +22,7 @@ from heli_uq.output import sample_posterior
 record, train, test = rig_or_synthetic()
 if SMALL:
     record, train, test = shortened(record, train, test, 30.0)
-chains, warmup, draws = (2, 150, 150) if SMALL else (4, 1000, 1000)
+chains, warmup, draws = (2, 150, 150) if SMALL else (4, 500, 500)
 print(f"size {SIZE}: train {train} s, test {test} s, {chains} chains x ({warmup} + {draws})")
 
 # %% [markdown]

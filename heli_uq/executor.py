@@ -31,7 +31,7 @@ import pathlib
 import traceback
 from collections.abc import Callable, Mapping
 
-__all__ = ["run_tasks", "TaskFailed", "CACHE_ENV", "default_workers"]
+__all__ = ["run_tasks", "check_scheduler", "TaskFailed", "CACHE_ENV", "default_workers"]
 
 #: Environment variable (read by JAX) naming the persistent compilation cache directory.
 CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
@@ -81,6 +81,15 @@ def _connect(address: str):
         raise ParameterError(f"scheduler: cannot reach a Dask scheduler at {address!r} within "
                              f"{CONNECT_TIMEOUT} ({type(exc).__name__}: {exc}); expected 'local', "
                              "'serial' or the address of a running scheduler") from None  # fmt: skip
+
+
+def check_scheduler(scheduler: str | None) -> None:
+    """Refuse, before any work starts, a scheduler address where no Dask scheduler answers
+    (:class:`~heli_uq.errors.ParameterError`, one line); ``"local"``, ``"serial"`` and
+    ``None`` need no check."""
+    if scheduler in (None, "local", "serial"):
+        return
+    _connect(scheduler).close()
 
 
 def run_tasks(fn: Callable, tasks: Mapping, *, scheduler: str | None = "local", workers: int | None = None,

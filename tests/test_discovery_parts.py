@@ -27,6 +27,8 @@ IMPLIED_RTOL = 0.05
 #: An implied effect parameter from the sparse regression is a start value, not an
 #: estimate: smoothing blurs the stick-slip transitions of friction.  Within this factor.
 IMPLIED_PARAM_FACTOR = 2.0
+#: Longest wait [s] for the error about an unreachable scheduler (the connect timeout is 10 s).
+UNREACHABLE_WAIT_S = 30.0
 
 
 def test_probe_values_of_scaled_effects_follow_the_fits_axis_inertia():
@@ -182,6 +184,20 @@ def test_run_tasks_reports_each_failure_and_finishes_the_rest(scheduler):
     assert out["a"] == 4 and out["c"] == 9
     assert isinstance(out["b"], TaskFailed) and "ValueError: negative input" in out["b"]["error"]
     assert sorted(seen) == ["a", "b", "c"]
+
+
+def test_an_unreachable_scheduler_is_one_clear_error_not_a_hang():
+    """Nothing listens on a closed loopback port: the executor says so in one line, within
+    its connect timeout, instead of waiting for a scheduler that never answers."""
+    import time
+
+    from heli_uq.errors import ParameterError
+
+    t0 = time.perf_counter()
+    with pytest.raises(ParameterError, match="cannot reach a Dask scheduler at 'tcp://127.0.0.1:1'") as exc:
+        run_tasks(_square_or_fail, {"a": 2}, scheduler="tcp://127.0.0.1:1")
+    assert "\n" not in str(exc.value)
+    assert time.perf_counter() - t0 < UNREACHABLE_WAIT_S
 
 
 def test_tied_candidates_are_named_and_the_fitting_window_breaks_the_tie():

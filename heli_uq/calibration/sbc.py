@@ -44,7 +44,7 @@ import numpy as np
 from scipy import stats
 
 from heli_uq.errors import DataFormatError, ParameterError
-from heli_uq.executor import TaskFailed, run_tasks
+from heli_uq.executor import TaskFailed, check_scheduler, run_tasks
 from heli_uq.inference import prepare_start, run_nuts
 from heli_uq.io import atomic_write_text
 from heli_uq.log import progress_log
@@ -354,6 +354,7 @@ def run_sbc(out_dir, settings: SBCSettings, replicates: int | Iterable[int], *, 
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     _check_settings(out, settings)
+    check_scheduler(scheduler)
     failed_path = out / FAILED_FILE
     failed = json.loads(failed_path.read_text()) if failed_path.exists() else {}
     todo = [int(r) for r in wanted if not _rep_path(out, r).exists()]

@@ -58,7 +58,7 @@ from heli_uq.discovery.locate import locate
 from heli_uq.discovery.report import write_outputs
 from heli_uq.discovery.sindy import rank_effects
 from heli_uq.errors import ParameterError
-from heli_uq.executor import TaskFailed, run_tasks
+from heli_uq.executor import TaskFailed, check_scheduler, run_tasks
 from heli_uq.io import atomic_write_text
 from heli_uq.log import progress_log
 from heli_uq.model import AXES, EFFECTS, build_model
@@ -277,6 +277,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     if not (isinstance(max_effects, int) and max_effects >= 1):
         raise ParameterError(f"max_effects: expected an integer >= 1, found {max_effects!r}")
     cost = budget if isinstance(budget, Budget) else BUDGETS[budget]
+    check_scheduler(scheduler)  # an unreachable scheduler fails now, not after the base fit
     base_effects = list(base_effects)
     build_model(base_effects, where="base_effects")  # validates names
     vocabulary = None if candidates is None else list(candidates)

@@ -11,14 +11,15 @@ from __future__ import annotations
 import os
 import warnings
 
-import numpyro
+# numpyro's progress bars come from tqdm.auto, which warns in a kernel without ipywidgets.
+warnings.filterwarnings("ignore", message="IProgress not found")
+
+import numpyro  # noqa: E402
 
 # One XLA host device per NUTS chain, so chains run in parallel: this must happen before
 # JAX starts, which is why every notebook imports this module first (the ``heli-uq``
 # commands do the same).
 numpyro.set_host_device_count(4)
-# numpyro's progress bars come from tqdm.auto, which warns in a kernel without ipywidgets.
-warnings.filterwarnings("ignore", message="IProgress not found")
 
 import heli_uq  # noqa: E402
 

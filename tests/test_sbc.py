@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from heli_uq.calibration import sbc
-from heli_uq.calibration.sbc import SBCSettings, run_sbc, summarise
+from heli_uq.calibration import SBCSettings, run_sbc, summarise
 from heli_uq.errors import ParameterError
 from heli_uq.probability.priors import X0_ANGLE_SD
 

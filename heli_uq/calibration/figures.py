@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from heli_uq.calibration.sbc import RANK_BINS, rank_bins
+from heli_uq.calibration.ranks import RANK_BINS, rank_bins
 from heli_uq.figure import new_figure, save_figure
 
 __all__ = ["plot_ranks"]

@@ -41,7 +41,6 @@ from collections.abc import Callable, Iterable
 
 import jax
 import numpy as np
-from scipy import stats
 
 from heli_uq.errors import DataFormatError, ParameterError
 from heli_uq.executor import TaskFailed, check_scheduler, run_tasks
@@ -54,8 +53,7 @@ from heli_uq.probability.priors import SIGMA_PRIOR, X0_ANGLE_SD, X0_RATE_SD
 from heli_uq.simulation import SYNTHETIC_X0, synthetic_experiment
 
 __all__ = ["SBCSettings", "study_priors", "draw_replicate", "run_replicate", "run_sbc",
-           "load_replicates", "summarise", "rank_bins", "SETTINGS_FILE", "FAILED_FILE",
-           "COVERAGE_LEVEL", "RANK_BINS"]  # fmt: skip
+           "load_replicates", "SETTINGS_FILE", "FAILED_FILE", "COVERAGE_LEVEL"]  # fmt: skip
 
 #: The model of the study: the paper's (12 parameters, no effects).
 MODEL = HeliModel()
@@ -67,8 +65,6 @@ MAX_REDRAWS = 100
 MAX_ANGLE = 50.0
 #: Central posterior interval whose coverage of the truth is recorded.
 COVERAGE_LEVEL = 0.90
-#: Bins of the rank histograms (chi-square test and figure).
-RANK_BINS = 10
 #: The settings of a run directory (a rerun under other settings is refused).
 SETTINGS_FILE = "settings.json"
 #: Replicates whose task raised, ``{"r": "<Type>: <message>"}`` (absent when none did).
@@ -390,75 +386,3 @@ def run_sbc(out_dir, settings: SBCSettings, replicates: int | Iterable[int], *, 
     if still:
         log(f"{out}: {len(still)} replicate(s) failed: {still} (see {FAILED_FILE}; a rerun retries them)")
     return load_replicates(out, wanted)
-
-
-def rank_bins(big_l: int, bins: int = RANK_BINS) -> tuple[np.ndarray, np.ndarray]:
-    """Histogram edges of ranks ``0..big_l`` and the probability of each bin under uniform
-    ranks (exact also when ``big_l + 1`` is not a multiple of ``bins``).
-
-    Returns
-    -------
-    edges : ndarray, shape (bins + 1,)
-    prob : ndarray, shape (bins,)
-        Sums to 1.
-    """
-    bins = min(bins, big_l + 1)
-    edges = np.linspace(0, big_l + 1, bins + 1)
-    prob = np.histogram(np.arange(big_l + 1), edges)[0] / (big_l + 1)
-    return edges, prob
-
-
-def summarise(reps: list[dict], bins: int = RANK_BINS) -> dict:
-    """Coverage and rank uniformity of SBC replicates.
-
-    Parameters
-    ----------
-    reps : list of dict
-        Replicates (:func:`run_replicate`), all with the same ``names``.
-    bins : int
-        Rank histogram bins of the chi-square test.
-
-    Returns
-    -------
-    dict
-        ``replicates``, ``L`` (smallest of the replicates; larger ranks are clipped to it),
-        ``quantities``: name -> ``coverage90`` (fraction of replicates whose central 90 %
-        interval covers the truth) and ``chi2_pvalue`` (chi-square test of uniform ranks
-        over ``bins`` bins), the coverage averaged over the quantities overall
-        (``coverage90_mean_over_quantities``) and split by the noise level
-        (``coverage90_sigma_below_x0_sd`` / ``..._above_...``: replicates with
-        ``sigma < X0_ANGLE_SD`` or not), and sampler statistics (``divergences_total``,
-        ``mean_steps``, ``wall_s_mean`` [s], ``step_size_mean``, ``map_grad_max_max``).
-    """
-    if not reps:
-        raise ParameterError("summarise: no replicates")
-    names = reps[0]["names"]
-    big_l = min(r["L"] for r in reps)
-    n = len(reps)
-    edges, prob = rank_bins(big_l, bins)
-    summary = {"replicates": n, "L": big_l, "quantities": {}}
-    for name in names:
-        ranks = np.array([min(r["ranks"][name], big_l) for r in reps])
-        counts = np.histogram(ranks, edges)[0]
-        p = stats.chisquare(counts, n * prob).pvalue
-        cov = float(np.mean([r["covered90"][name] for r in reps]))
-        summary["quantities"][name] = {"coverage90": cov, "chi2_pvalue": float(p)}
-
-    def mean_cov(group):
-        return float(np.mean([[r["covered90"][q] for q in names] for r in group])) if group else None
-
-    # Split by noise level: with x0_prior="data" the model centres the initial-angle prior
-    # on the first (noisy) measurement and the generator does not, so the two priors differ
-    # when sigma is not small next to X0_ANGLE_SD.
-    low = [r for r in reps if r["sigma"] < X0_ANGLE_SD]
-    high = [r for r in reps if r["sigma"] >= X0_ANGLE_SD]
-    for label, group in (("sigma_below_x0_sd", low), ("sigma_above_x0_sd", high)):
-        summary[f"coverage90_{label}"] = {"replicates": len(group), "mean_over_quantities": mean_cov(group)}
-    summary["coverage90_mean_over_quantities"] = mean_cov(reps)
-    summary["divergences_total"] = int(sum(r["divergences"] for r in reps))
-    summary["mean_steps"] = float(np.mean([r["mean_steps"] for r in reps]))
-    summary["wall_s_mean"] = float(np.mean([r["wall_s"] for r in reps]))
-    summary["step_size_mean"] = float(np.mean([np.mean(r.get("step_size", np.nan)) for r in reps]))
-    summary["map_grad_max_max"] = float(max(r.get("map_grad_max", np.nan) for r in reps))
-    summary["settings"] = reps[0].get("settings")
-    return summary

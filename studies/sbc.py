@@ -56,7 +56,8 @@ def _settings(args) -> SBCSettings:
     return SBCSettings(duration=args.duration, prior_sd=args.prior_sd, h_sd=args.h_sd,
                        chains=args.chains, warmup=args.warmup, draws=args.draws,
                        adapt_mass_matrix=args.adapt_mass_matrix, map_maxiter=args.map_maxiter,
-                       x0_prior=args.x0_prior, ranks=args.ranks)  # fmt: skip
+                       x0_prior=args.x0_prior, ranks=args.ranks,
+                       thin_to_ess=not args.no_thin)  # fmt: skip
 
 
 def plot(out: pathlib.Path, fig: pathlib.Path, argv=None) -> dict:
@@ -89,7 +90,9 @@ def main(argv=None):
     ap.add_argument("--adapt-mass-matrix", action="store_true",
                     help="also adapt the Laplace mass matrix in warm-up (default: keep it)")
     ap.add_argument("--only", type=int, nargs="*", help="run just these replicates")
-    ap.add_argument("--ranks", type=int, default=99)
+    ap.add_argument("--ranks", type=int, default=99, help="most draws the truth is ranked among")
+    ap.add_argument("--no-thin", action="store_true",
+                    help="rank among the draws as they are (default: thinned to their ESS)")
     ap.add_argument("--scheduler", default="local",
                     help="'local' (Dask cluster of --workers processes), 'serial' (in this "
                          "process) or the address of a Dask scheduler (tcp://host:8786)")

@@ -12,6 +12,7 @@ import pytest
 
 from heli_uq.calibration import sbc
 from heli_uq.calibration import SBCSettings, run_sbc, summarise
+from heli_uq.calibration.ranks import expected_interval_coverage, rank_covered, thinned_ranks
 from heli_uq.errors import ParameterError
 from heli_uq.probability.priors import X0_ANGLE_SD
 
@@ -31,6 +32,12 @@ L_SYNTHETIC = 19
 P_REJECT = 1e-3
 #: Coverage of exactly uniform ranks with the 90 % interval's flags set from the ranks.
 COVERAGE_TOL = 0.05
+#: Monte Carlo replicates of the calibrated-Gaussian cases (coverage sd ~ 0.003).
+N_MONTE_CARLO = 10_000
+#: Their coverage agrees with the formula within 4 Monte Carlo sd.
+MC_COVERAGE_TOL = 0.012
+#: Lag-1 autocorrelation of the AR(1) "sampler" whose raw ranks are not uniform.
+AR_RHO = 0.99
 
 
 @pytest.fixture(scope="module")
@@ -104,6 +111,70 @@ def test_a_rerun_reuses_stored_replicates_and_refuses_other_settings(tmp_path, m
     assert len(list(tmp_path.glob("rep_*.json"))) == 4
 
 
+def test_a_directory_from_before_thinning_refuses_thinned_replicates(tmp_path, monkeypatch):
+    """A field added later counts with its old value: a directory whose settings lack
+    ``thin_to_ess`` ranked unthinned draws, so thinned replicates must not join it."""
+    monkeypatch.setattr(sbc, "run_replicate", _fake_replicate)
+    run_sbc(tmp_path, TINY, 1, scheduler="serial")
+    old = {k: v for k, v in TINY.to_dict().items() if k != "thin_to_ess"}
+    (tmp_path / sbc.SETTINGS_FILE).write_text(json.dumps(old))
+    with pytest.raises(ParameterError, match=r"thin_to_ess \(stored False, requested True\)"):
+        run_sbc(tmp_path, TINY, 2, scheduler="serial")
+    unthinned = SBCSettings(**{**TINY.to_dict(), "thin_to_ess": False})
+    assert len(run_sbc(tmp_path, unthinned, 2, scheduler="serial")) == 2
+
+
+def test_interval_and_rank_coverage_of_a_calibrated_gaussian_posterior():
+    """Truth and 100 posterior draws from one N(0, 1): the quantile interval covers
+    (n - 1) 0.9 / (n + 1) = 88.2 %, the central ranks exactly 90 %."""
+    rng = np.random.default_rng(1)
+    n = 100
+    truth = rng.standard_normal(N_MONTE_CARLO)
+    draws = rng.standard_normal((N_MONTE_CARLO, n))
+    lo, hi = np.quantile(draws, [0.05, 0.95], axis=1)
+    interval = np.mean((lo <= truth) & (truth <= hi))
+    assert interval == pytest.approx(expected_interval_coverage(n), abs=MC_COVERAGE_TOL)
+    assert expected_interval_coverage(n) == pytest.approx(0.8822, abs=1e-4)
+    ranks = np.sum(draws[:, :99] < truth[:, None], axis=1)
+    assert np.mean([rank_covered(k, 99) for k in ranks]) == pytest.approx(0.9, abs=MC_COVERAGE_TOL)
+    assert [rank_covered(k, 99) for k in (4, 5, 94, 95)] == [False, True, True, False]
+
+
+def _ar1_replicates(thin_to_ess: bool, n_reps: int = 1000, n: int = 1000):
+    """Replicates of a calibrated but autocorrelated sampler: truth ~ N(0, 1), draws a
+    stationary AR(1) chain with N(0, 1) marginals, independent of the truth."""
+    rng = np.random.default_rng(2)
+    reps = []
+    for _ in range(n_reps):
+        truth = rng.standard_normal()
+        x = np.empty(n)
+        x[0] = rng.standard_normal()
+        innovations = np.sqrt(1 - AR_RHO**2) * rng.standard_normal(n)
+        for t in range(1, n):
+            x[t] = AR_RHO * x[t - 1] + innovations[t]
+        ranks, big_l, thin, ess = thinned_ranks(x[None, :, None], np.array([truth]), 99,
+                                                thin_to_ess=thin_to_ess)  # fmt: skip
+        reps.append({"names": ["q"], "L": big_l, "sigma": 0.01, "ranks": {"q": int(ranks[0])},
+                     "covered90": {"q": rank_covered(int(ranks[0]), big_l)}, "ess": {"q": float(ess[0])},
+                     "divergences": 0, "mean_steps": 1.0, "wall_s": 1.0})  # fmt: skip
+    return reps
+
+
+def test_thinning_to_the_ess_makes_autocorrelated_ranks_uniform():
+    """Raw ranks among strongly autocorrelated draws pile up at the ends (the draws cover
+    only part of the posterior, so the truth often lies beyond all of them); thinned to
+    the ESS they are uniform.  Also checks the pooled histogram when L differs between replicates."""
+    raw, thinned = summarise(_ar1_replicates(False)), summarise(_ar1_replicates(True))
+    assert raw["quantities"]["q"]["chi2_pvalue"] < P_REJECT
+    assert thinned["quantities"]["q"]["chi2_pvalue"] > P_REJECT
+    reps = _ar1_replicates(True)
+    assert len({r["L"] for r in reps}) > 1 and max(r["L"] for r in reps) < 99
+    # the draws' ESS is far below their number (~ n (1 - rho) / (1 + rho) = 5)
+    assert thinned["quantities"]["q"]["ess_median"] < 0.02 * 1000
+    # raw ranks of too few effective draws also under-cover
+    assert raw["quantities"]["q"]["coverage90_rank"] < 0.9 - 2 * COVERAGE_TOL
+
+
 def test_settings_of_an_older_directory_come_from_its_replicates(tmp_path, monkeypatch):
     """A directory written before settings.json existed is checked against the settings
     recorded in its replicates."""
@@ -164,8 +235,10 @@ def test_summary_tells_uniform_ranks_from_broken_ones():
     mixed_ranks = np.where(sigmas < X0_ANGLE_SD, L_SYNTHETIC // 2, 0)
     mixed = summarise(_synthetic(mixed_ranks, sigmas))
     half = N_SYNTHETIC // 2
-    assert mixed["coverage90_sigma_below_x0_sd"] == {"replicates": half, "mean_over_quantities": 1.0}
-    assert mixed["coverage90_sigma_above_x0_sd"] == {"replicates": half, "mean_over_quantities": 0.0}
+    assert mixed["coverage90_sigma_below_x0_sd"] == {"replicates": half, "mean_over_quantities": 1.0,
+                                                     "rank_mean_over_quantities": 1.0}  # fmt: skip
+    assert mixed["coverage90_sigma_above_x0_sd"] == {"replicates": half, "mean_over_quantities": 0.0,
+                                                     "rank_mean_over_quantities": 0.0}  # fmt: skip
     assert mixed["coverage90_mean_over_quantities"] == 0.5
 
 

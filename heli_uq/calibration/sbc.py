@@ -42,6 +42,7 @@ from collections.abc import Callable, Iterable
 import jax
 import numpy as np
 
+from heli_uq.calibration.ranks import thinned_ranks
 from heli_uq.errors import DataFormatError, ParameterError
 from heli_uq.executor import TaskFailed, check_scheduler, run_tasks
 from heli_uq.inference import prepare_start, run_nuts
@@ -71,6 +72,8 @@ SETTINGS_FILE = "settings.json"
 FAILED_FILE = "failed.json"
 #: MAP starts per replicate.
 N_STARTS = 2
+#: Values of settings fields added later, as directories written before them were run.
+LEGACY_SETTINGS = {"thin_to_ess": False}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,7 +98,11 @@ class SBCSettings:
         Centre of the initial-angle prior: the first measurement (the package's model) or
         the generator's centre (a consistent SBC).
     ranks : int
-        Thinned draws the truth is ranked among (L; fewer if ``chains * draws`` is smaller).
+        Most draws the truth is ranked among (L; fewer if ``chains * draws`` is smaller).
+    thin_to_ess : bool
+        Thin the draws to about their smallest effective sample size before ranking (Talts
+        et al. 2018): autocorrelated draws make ranks non-uniform for a calibrated
+        posterior.  Then ``L = chains * draws // ceil(chains * draws / min ESS)``.
     """
 
     duration: float = 5.0
@@ -108,6 +115,7 @@ class SBCSettings:
     map_maxiter: int = 0
     x0_prior: str = "data"
     ranks: int = 99
+    thin_to_ess: bool = True
 
     def __post_init__(self):
         for name in ("duration", "prior_sd"):
@@ -121,6 +129,8 @@ class SBCSettings:
             value = getattr(self, name)
             if not (isinstance(value, int) and not isinstance(value, bool) and value >= low):
                 raise ParameterError(f"{name}: expected an integer >= {low}, found {value!r}")
+        if not isinstance(self.thin_to_ess, bool):
+            raise ParameterError(f"thin_to_ess: expected True or False, found {self.thin_to_ess!r}")
         if self.x0_prior not in ("data", "generator"):
             raise ParameterError(f"x0_prior: expected 'data' or 'generator', found {self.x0_prior!r}")
 
@@ -203,7 +213,9 @@ def run_replicate(task) -> dict:
     dict
         JSON-ready: ``replicate``, ``truth``, ``sigma`` [rad], ``x0``, ``redraws``,
         ``names`` (the ranked coordinates), ``L`` (draws ranked among), ``ranks``
-        (name -> rank of the truth, 0..L), ``covered90`` (name -> bool), sampler
+        (name -> rank of the truth, 0..L), ``covered90`` (name -> bool), ``ess``
+        (name -> effective sample size of the draws), ``thin`` (every how many draws were
+        ranked), sampler
         statistics (``divergences``, ``mean_steps``, ``step_size``, ``start_s``,
         ``nuts_s``, ``wall_s`` [s]), ``settings`` and ``provenance``.
     """
@@ -225,20 +237,22 @@ def run_replicate(task) -> dict:
                            draws=settings.draws, seed=r, progress=False, start=start,
                            adapt_mass_matrix=settings.adapt_mass_matrix)  # fmt: skip
         wall = time.perf_counter() - t0
-        z = np.asarray(run.samples["z"]).reshape(-1, len(names))
-        thin = max(1, z.shape[0] // settings.ranks)
-        zt = z[::thin][: settings.ranks]
+        chains_z = np.asarray(run.samples["z"]).reshape(settings.chains, -1, len(names))
+        ranks, big_l, thin, ess = thinned_ranks(chains_z, z_true, settings.ranks,
+                                                thin_to_ess=settings.thin_to_ess)  # fmt: skip
+        z = chains_z.reshape(-1, len(names))
         tail = (1 - COVERAGE_LEVEL) / 2
         out = {"replicate": r, "truth": truth, "sigma": sigma, "x0": x0.tolist(),
-               "redraws": redraws, "names": list(names), "L": int(zt.shape[0]), "wall_s": wall,
+               "redraws": redraws, "names": list(names), "L": big_l, "wall_s": wall,
                "divergences": int(np.sum(run.stats["diverging"])),
                "mean_steps": float(np.mean(run.stats["num_steps"])),
                "step_size": np.asarray(run.info["step_size"]).tolist(), "start_s": t1 - t0,
                "nuts_s": wall - (t1 - t0), "map_grad_max": float(start.map_grad_max),
                "map_decrement": float(start.map_decrement), "settings": settings.to_dict(),
+               "ess": dict(zip(names, ess.tolist())), "thin": thin,
                "ranks": {}, "covered90": {}}  # fmt: skip
         for i, n in enumerate(names):
-            out["ranks"][n] = int(np.sum(zt[:, i] < z_true[i]))
+            out["ranks"][n] = int(ranks[i])
             lo, hi = np.quantile(z[:, i], [tail, 1 - tail])
             out["covered90"][n] = bool(lo <= z_true[i] <= hi)
         out["provenance"] = _provenance(time.perf_counter() - t_rep)
@@ -271,6 +285,8 @@ def _check_settings(out: pathlib.Path, settings: SBCSettings) -> None:
     on the first run."""
     stored, where = _stored_settings(out)
     now = settings.to_dict()
+    if stored is not None:
+        stored = {**LEGACY_SETTINGS, **stored}
     if stored is None:
         atomic_write_text(out / SETTINGS_FILE, json.dumps(now, indent=1))
         return

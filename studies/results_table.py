@@ -119,8 +119,13 @@ def results_table() -> str:
     sbc = RESULTS / "sbc_v2" / "summary.json"
     if sbc.is_file():
         s = json.loads(sbc.read_text())
+        rank = s.get("coverage90_rank_mean_over_quantities")
         notes.append(f"- SBC (`sbc_v2/summary.json`): {s['replicates']} replicates, mean 90 % coverage "
-                     f"{_pct(s['coverage90_mean_over_quantities'])} over the sampled coordinates.")
+                     f"{_pct(s['coverage90_mean_over_quantities'])} over the sampled coordinates"
+                     + (f" (from the ranks {_pct(rank)}; the quantile interval of "
+                        f"{s['settings']['chains'] * s['settings']['draws']} draws covers "
+                        f"{_pct(s['coverage90_interval_expected_iid'])} when calibrated)" if rank else "")
+                     + ".")  # fmt: skip
     design = _last_jsonl("design_gain.jsonl")
     if design is not None and "median_volume_ratio_vs_published" in design:
         notes.append(f"- Experiment design (`design_gain.jsonl`, {design['duration_s']:g} s): the designed "

@@ -42,6 +42,7 @@ from collections.abc import Callable, Iterable
 import jax
 import numpy as np
 
+from heli_uq import __version__
 from heli_uq.calibration.ranks import thinned_ranks
 from heli_uq.errors import DataFormatError, ParameterError
 from heli_uq.executor import TaskFailed, check_scheduler, run_tasks
@@ -72,7 +73,7 @@ SETTINGS_FILE = "settings.json"
 FAILED_FILE = "failed.json"
 #: MAP starts per replicate.
 N_STARTS = 2
-#: Values of settings fields added later, as directories written before them were run.
+#: Settings added later, with the values older run directories were made with.
 LEGACY_SETTINGS = {"thin_to_ess": False}
 
 
@@ -100,9 +101,7 @@ class SBCSettings:
     ranks : int
         Most draws the truth is ranked among (L; fewer if ``chains * draws`` is smaller).
     thin_to_ess : bool
-        Thin the draws to about their smallest effective sample size before ranking (Talts
-        et al. 2018): autocorrelated draws make ranks non-uniform for a calibrated
-        posterior.  Then ``L = chains * draws // ceil(chains * draws / min ESS)``.
+        Rank among draws thinned to their ESS (:func:`~heli_uq.calibration.ranks.thinned_ranks`).
     """
 
     duration: float = 5.0
@@ -194,9 +193,7 @@ def draw_replicate(r: int, priors: PriorSet, duration: float):
 
 
 def _provenance(wall_s: float) -> dict:
-    import heli_uq
-
-    return {"heli_uq": heli_uq.__version__, "jax": jax.__version__, "wall_s": float(wall_s),
+    return {"heli_uq": __version__, "jax": jax.__version__, "wall_s": float(wall_s),
             "time": time.strftime("%Y-%m-%dT%H:%M:%S")}  # fmt: skip
 
 
@@ -213,9 +210,8 @@ def run_replicate(task) -> dict:
     dict
         JSON-ready: ``replicate``, ``truth``, ``sigma`` [rad], ``x0``, ``redraws``,
         ``names`` (the ranked coordinates), ``L`` (draws ranked among), ``ranks``
-        (name -> rank of the truth, 0..L), ``covered90`` (name -> bool), ``ess``
-        (name -> effective sample size of the draws), ``thin`` (every how many draws were
-        ranked), sampler
+        (name -> rank of the truth, 0..L), ``covered90`` (name -> bool), ``ess`` (name ->
+        ESS of the draws), ``thin`` (every how many draws were ranked), sampler
         statistics (``divergences``, ``mean_steps``, ``step_size``, ``start_s``,
         ``nuts_s``, ``wall_s`` [s]), ``settings`` and ``provenance``.
     """
@@ -285,8 +281,7 @@ def _check_settings(out: pathlib.Path, settings: SBCSettings) -> None:
     on the first run."""
     stored, where = _stored_settings(out)
     now = settings.to_dict()
-    if stored is not None:
-        stored = {**LEGACY_SETTINGS, **stored}
+    stored = None if stored is None else {**LEGACY_SETTINGS, **stored}
     if stored is None:
         atomic_write_text(out / SETTINGS_FILE, json.dumps(now, indent=1))
         return

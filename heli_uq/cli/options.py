@@ -15,7 +15,7 @@ from heli_uq.errors import ParameterError
 
 __all__ = ["Formatter", "add_model_options", "model_from_args", "add_prior_options",
            "priors_from_args", "check_positive", "out_dir", "positive_float", "EFFECTS_HELP",
-           "add_trust_options", "report_health", "EXIT_UNHEALTHY"]  # fmt: skip
+           "add_trust_options", "report_health", "EXIT_UNHEALTHY", "DEFAULT_HIDDEN"]  # fmt: skip
 
 #: Exit status of a run whose health checks failed under ``--strict``.
 EXIT_UNHEALTHY = 3
@@ -41,8 +41,13 @@ def _effects_help() -> str:
 EFFECTS_HELP = _effects_help()
 
 
+#: Hidden units of ``--model hybrid`` unless ``--hidden`` says otherwise.
+DEFAULT_HIDDEN = 4
+
+
 def add_model_options(p) -> None:
-    """``--effects`` and ``--model-file``."""
+    """``--effects``, ``--model-file`` and the hybrid model's ``--model``, ``--nn-inputs``,
+    ``--hidden``, ``--nn-axes``."""
     p.add_argument("--effects", metavar="AXIS:EFFECT,...", default=None,
                    help="named effects added to the paper's model, e.g. "
                         "yaw:coulomb_friction,yaw:torque_offset (default: none; see 'effects' "
@@ -50,6 +55,18 @@ def add_model_options(p) -> None:
     p.add_argument("--model-file", metavar="MODEL.json", default=None,
                    help='the model as JSON, e.g. {"effects": ["yaw:deadband", {"effect": '
                         '"coulomb_friction", "axis": "yaw", "omega_s": 0.001}]}')
+    p.add_argument("--model", choices=["mechanistic", "hybrid"], default="mechanistic",
+                   help="'hybrid' adds a neural torque (tanh network) on each of --nn-axes to "
+                        "the model of --effects/--model-file (default: mechanistic)")
+    p.add_argument("--nn-inputs", choices=["u", "u,x,v"], default=None,
+                   help="hybrid: the network's inputs, the voltages (u) or also the angles and "
+                        "rates (u,x,v) (default: u)")
+    p.add_argument("--hidden", type=int, default=None,
+                   help=f"hybrid: hidden units per network (default: {DEFAULT_HIDDEN}; the paper "
+                        "used 16)")
+    p.add_argument("--nn-axes", default=None, metavar="yaw|pitch|pitch,yaw",
+                   help="hybrid: the axes that get a network (default: yaw, the axis the "
+                        "paper's network corrected)")
 
 
 def model_from_args(args):
@@ -59,8 +76,41 @@ def model_from_args(args):
     if args.effects is not None and args.model_file is not None:
         raise ParameterError("--effects and --model-file: give one of them, not both")
     if args.model_file is not None:
-        return load_model_file(args.model_file)
-    return parse_effects(args.effects, where="--effects")
+        model = load_model_file(args.model_file)
+    else:
+        model = parse_effects(args.effects, where="--effects")
+    return _with_networks(args, model)
+
+
+def _with_networks(args, model):
+    """``model`` plus the neural torques of ``--model hybrid`` (the projection also takes
+    out the constant where the axis has a torque offset, which then owns it)."""
+    from heli_uq.model.spec import build_model
+
+    given = [f"--{n.replace('_', '-')}" for n in ("nn_inputs", "hidden", "nn_axes")
+             if getattr(args, n, None) is not None]  # fmt: skip
+    if getattr(args, "model", "mechanistic") != "hybrid":
+        if given:
+            raise ParameterError(f"{given[0]}: only with --model hybrid")
+        return model
+    hidden = DEFAULT_HIDDEN if args.hidden is None else args.hidden
+    if isinstance(hidden, bool) or hidden < 1:
+        raise ParameterError(f"--hidden: expected a positive integer, found {hidden}")
+    axes = [a.strip() for a in (args.nn_axes or "yaw").split(",") if a.strip()]
+    bad = [a for a in axes if a not in ("pitch", "yaw")]
+    if bad or not axes or len(set(axes)) < len(axes):
+        raise ParameterError(f"--nn-axes: expected pitch, yaw or pitch,yaw, found {args.nn_axes!r}")
+    effects = model.describe()["effects"]
+    have = {(e["effect"], e["axis"]) for e in effects}
+    for axis in axes:
+        if ("neural_torque", axis) in have:
+            raise ParameterError(f"--nn-axes: the model already has a neural torque on {axis}")
+        project = "1,u" if ("torque_offset", axis) in have else "u"
+        effects.append({"effect": "neural_torque", "axis": axis, "inputs": args.nn_inputs or "u",
+                        "hidden": hidden, "project": project})  # fmt: skip
+    desc = model.describe()
+    return build_model(effects, mechanics=desc.get("mechanics", "closed_form"),
+                       linear_torque=desc.get("linear_torque", True), where="--model hybrid")
 
 
 def add_prior_options(p) -> None:

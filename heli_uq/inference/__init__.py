@@ -18,15 +18,16 @@ from heli_uq.inference.nuts import TARGET_ACCEPT as TARGET_ACCEPT
 from heli_uq.inference.nuts import SamplerRun as SamplerRun
 from heli_uq.inference.nuts import run_nuts as run_nuts
 from heli_uq.inference.start import Start as Start
+from heli_uq.inference.laplace_sampler import run_laplace as run_laplace
 from heli_uq.inference.start import least_squares_fit as least_squares_fit
 from heli_uq.inference.start import prepare_start as prepare_start
 from heli_uq.inference.start import start_parameters as start_parameters
 from heli_uq.inference.train import Training as Training
 from heli_uq.inference.train import train as train
 
-SAMPLERS = ("nuts", "emcee")
+SAMPLERS = ("nuts", "emcee", "laplace")
 
 __all__ = ["Checkpoint", "LogDensity", "constrain_draws", "log_density_setup", "run_emcee",
            "masked_least_squares", "MapResult", "find_map", "laplace", "TARGET_ACCEPT",
-           "SamplerRun", "run_nuts", "Start", "least_squares_fit", "prepare_start",
+           "SamplerRun", "run_nuts", "run_laplace", "Start", "least_squares_fit", "prepare_start",
            "start_parameters", "SAMPLERS", "run_manifest", "train", "Training"]  # fmt: skip

@@ -18,7 +18,7 @@ import optax
 from heli_uq.errors import ParameterError
 from heli_uq.inference.density import LogDensity
 
-__all__ = ["MapResult", "find_map", "newton_polish", "laplace", "HESSIAN_STEP", "NEWTON_STEPS",
+__all__ = ["MapResult", "find_map", "newton_polish", "laplace", "leave_saddles", "HESSIAN_STEP", "NEWTON_STEPS",
            "NEWTON_TOL", "NEWTON_EXTEND", "NEWTON_SCOUT_STEPS"]  # fmt: skip
 
 #: Relative step of the finite-difference Hessian (of the analytic gradient).
@@ -214,6 +214,50 @@ def _extend(f, x: np.ndarray, step: np.ndarray, value: float):
             break
         t, value = 2 * t, new
     return t, value
+
+
+#: Rounds of :func:`leave_saddles`, and the Newton steps after each escape.
+SADDLE_ROUNDS = 4
+SADDLE_POLISH_STEPS = 20
+
+
+def leave_saddles(density: LogDensity, x: np.ndarray, rounds: int = SADDLE_ROUNDS,
+                  polish_steps: int = SADDLE_POLISH_STEPS):  # fmt: skip
+    """From a stationary point with negative curvature to a local minimum of ``-log p``.
+
+    :func:`newton_polish` replaces negative Hessian eigenvalues by their absolute values, so
+    it converges to saddles as well as to minima; a neural term's posterior has them (two
+    hidden units that do the same thing).  While the Hessian has a negative eigenvalue
+    ``lam`` (eigenvector ``v``), step to whichever of ``x +- t v`` is lower, with ``t`` from
+    ``1 / sqrt(|lam|)`` halving until ``-log p`` falls, and polish again.
+
+    Returns ``(x, value, max |grad|, newton decrement, rounds taken)``.
+    """
+    f = density.potential_jit
+    x = np.asarray(x, dtype=float)
+    value, grad_max, decrement = float(f(x)), float("nan"), float("nan")
+    for k in range(rounds):
+        h = _fd_hessian(density.grad_jit, x)
+        if not np.all(np.isfinite(h)):
+            return x, value, grad_max, decrement, k
+        w, v = np.linalg.eigh(h)
+        if w[0] >= 0:
+            return x, value, grad_max, decrement, k
+        best = None
+        t = 1.0 / np.sqrt(-w[0])
+        for _ in range(20):
+            for sign in (1.0, -1.0):
+                trial = x + sign * t * v[:, 0]
+                new = float(f(trial))
+                if np.isfinite(new) and new < value and (best is None or new < best[1]):
+                    best = (trial, new)
+            if best is not None:
+                break
+            t *= 0.5
+        if best is None:
+            return x, value, grad_max, decrement, k
+        x, value, grad_max, decrement, _ = newton_polish(density, best[0], polish_steps)
+    return x, value, grad_max, decrement, rounds
 
 
 def laplace(density: LogDensity, x: np.ndarray):

@@ -17,6 +17,7 @@ import warnings
 import arviz as az
 import numpy as np
 
+from heli_uq.output.network import is_network_weight
 from heli_uq.probability.likelihood import loss_v
 from heli_uq.simulation.physical import unphysical_draws as _unphysical
 
@@ -32,9 +33,13 @@ ESS_MIN = 400
 BFMI_MIN = 0.3
 
 
-def _diagnostic_vars(idata) -> list[str]:
-    post = idata.posterior
-    return [v for v in post.data_vars if v != "z"]
+def _diagnostic_vars(idata, weights: bool = False) -> list[str]:
+    """Posterior variables whose R-hat/ESS judge convergence: every quantity except the
+    sampling coordinates ``z`` and the raw network weights (their sign and permutation
+    symmetries make them meaningless one by one; the network is judged by its output
+    torque ``nn_torque_<axis>``).  ``weights=True``: the raw network weights only."""
+    names = [v for v in idata.posterior.data_vars if v != "z"]
+    return [v for v in names if is_network_weight(v) == weights]
 
 
 def _worst(column, pick):
@@ -62,8 +67,17 @@ def convergence(idata) -> dict:
         "worst_rhat_variable": _worst(summ["r_hat"], max),
         "worst_ess_variable": _worst(summ["ess_bulk"], min),
     }
-    for key in ("map_seconds", "warmup_seconds", "map_decrement", "target_accept", "substeps",
-                "wall_coordinates"):
+    weights = _diagnostic_vars(idata, weights=True)
+    if weights:  # reported, not judged (see _diagnostic_vars)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            rw = az.summary(idata, var_names=weights, kind="diagnostics")["r_hat"]
+        out["rhat_max_network_weights"] = float(rw.max())
+        torques = [v for v in names if v.startswith("nn_torque_")]
+        out["rhat_max_network_torque"] = float(summ.loc[[i for i in summ.index
+                                                        if i.split("[")[0] in torques], "r_hat"].max())
+    for key in ("map_seconds", "warmup_seconds", "map_decrement", "map_decrement_max", "target_accept",
+                "substeps", "wall_coordinates"):
         if key in info:
             out[key] = info[key]
     stats = idata.sample_stats
@@ -76,7 +90,7 @@ def convergence(idata) -> dict:
         out["step_size"] = info.get("step_size")
     else:
         out["divergences"] = 0
-        for key in ("acceptance", "tau", "ess_emcee", "warnings"):
+        for key in ("acceptance", "tau", "ess_emcee", "pareto_k", "failed_draws", "warnings"):
             if key in info:
                 out[key] = info[key]
     out["converged"] = bool(

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 
+from heli_uq.inference.start import MAP_DECREMENT_MAX as _START_DECREMENT_MAX
 from heli_uq.output.diagnostics import BFMI_MIN, ESS_MIN, RHAT_MAX
 
 __all__ = ["check_health", "format_warnings", "TREE_DEPTH_SATURATION_MAX", "STEP_SIZE_MIN",
@@ -40,9 +41,9 @@ TREE_DEPTH_SATURATION_MAX = 0.05
 STEP_SIZE_MIN = 1e-3
 #: A chain's step size below this fraction of another chain's has collapsed (a stuck chain).
 STEP_SIZE_RATIO_MIN = 1e-2
-#: Largest Newton decrement g^T H^-1 g [nats] of a converged MAP: its square root is the
-#: distance to the optimum in posterior sd (0.03 sd).
-MAP_DECREMENT_MAX = 1e-3
+#: Largest Newton decrement of a converged MAP, unless the run states its own
+#: (``map_decrement_max``: a hybrid model's, :mod:`heli_uq.inference.start`).
+MAP_DECREMENT_MAX = _START_DECREMENT_MAX
 UNCONVERGED = "UNCONVERGED"
 UNPHYSICAL = "unphysical"
 
@@ -82,9 +83,10 @@ def _sampler_warnings(s: dict) -> list[str]:
                            f"{STEP_SIZE_RATIO_MIN:g} of another chain's ({largest:.2g})")  # fmt: skip
     if _bad(s.get("bfmi_min"), BFMI_MIN, False):
         out.append(f"E-BFMI {s['bfmi_min']:.2g} < {BFMI_MIN}")
-    if _bad(s.get("map_decrement"), MAP_DECREMENT_MAX, True):
+    limit = s.get("map_decrement_max") or MAP_DECREMENT_MAX
+    if _bad(s.get("map_decrement"), limit, True):
         out.append(f"the MAP did not converge (Newton decrement {s['map_decrement']:.2g} > "
-                   f"{MAP_DECREMENT_MAX:g})")  # fmt: skip
+                   f"{limit:g})")  # fmt: skip
     out.extend(str(w) for w in (s.get("warnings") or []))  # emcee's own
     return out
 

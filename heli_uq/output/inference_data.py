@@ -4,6 +4,8 @@ Groups:
 
 * ``posterior``: the model's free parameters by name (SI), the initial state, ``sigma``,
   ``tau`` and ``rho`` per ``output``, the sampling coordinates ``z`` per ``coordinate``;
+  for a hybrid model also ``nn_torque_<axis>``, the network's output torque [N m] on the
+  grid of :mod:`heli_uq.output.network` (dim ``nn_point_<axis>``, its inputs as coords);
 * ``sample_stats``; ``prior`` (draws of every free prior, by name);
 * ``log_likelihood``: ``y``, the pointwise log likelihood of the training window per
   ``time_block`` of ``loglik_block`` samples (sums over each block; a block of 1 is the
@@ -46,6 +48,7 @@ from heli_uq.errors import DataFormatError
 from heli_uq.io import publish
 from heli_uq.model.spec import model_from_description
 from heli_uq.model.tables import X0_NAMES
+from heli_uq.output.network import network_torques
 from heli_uq.probability.likelihood import pointwise_log_likelihood
 from heli_uq.probability.noise import ar1_noise
 from heli_uq.probability.priors import OUTPUTS
@@ -214,6 +217,7 @@ def to_inference_data(run, *, prior_draws: int = 500, seed: int = 0, pp_draws: i
         f"{pp_idx.size} of {draws} draws per chain (evenly spaced; their indices are the 'draw' "
         "coordinate); y_pred and y_sim stored as float32, rounded to multiples of "
         f"{PREDICTIVE_RESOLUTION:.3g} rad")  # fmt: skip
+    _add_network_torques(idata, problem, run.samples)
     info = {k: v for k, v in run.info.items() if k not in ("x_map", "covariance")}
     idata.posterior.attrs.update({
         "sampler_info": json.dumps(info, default=lambda o: np.asarray(o).tolist()),
@@ -225,6 +229,21 @@ def to_inference_data(run, *, prior_draws: int = 500, seed: int = 0, pp_draws: i
         "free_parameters": ",".join(problem.coords.free),
     })  # fmt: skip
     return idata
+
+
+def _add_network_torques(idata: az.InferenceData, problem, samples: dict) -> None:
+    """``nn_torque_<axis>`` of every neural term into the posterior (module docstring)."""
+    import xarray as xr
+
+    for axis, (torque, points) in network_torques(problem, samples).items():
+        dim = f"nn_point_{axis}"
+        coords = {dim: np.arange(torque.shape[-1]),
+                  **{f"{dim}_{k}": (dim, np.asarray(v)) for k, v in points.items()}}  # fmt: skip
+        idata.posterior[f"nn_torque_{axis}"] = xr.DataArray(
+            torque, dims=("chain", "draw", dim),
+            coords={"chain": idata.posterior["chain"], "draw": idata.posterior["draw"], **coords},
+            attrs={"units": "N m", "long_name": f"network torque on {axis} at the training "
+                                                 f"window's inputs ({', '.join(points)})"})  # fmt: skip
 
 
 #: NetCDF encoding of every numeric variable: zlib after the byte-shuffle filter, which

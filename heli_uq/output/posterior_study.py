@@ -20,7 +20,7 @@ import numpy as np
 from heli_uq.log import progress_log
 from heli_uq.data.record import Experiment
 from heli_uq.errors import ParameterError
-from heli_uq.inference import SAMPLERS, TARGET_ACCEPT, prepare_start, run_emcee, run_nuts
+from heli_uq.inference import SAMPLERS, TARGET_ACCEPT, prepare_start, run_emcee, run_laplace, run_nuts
 from heli_uq.inference.nuts import check_draws_memory
 from heli_uq.io import atomic_write_text
 from heli_uq.model.heli_model import HeliModel
@@ -94,8 +94,10 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
         Default: the paper's model.
     train, test : (float, float), optional
         Windows in seconds (see :func:`heli_uq.probability.make_problem`).
-    sampler : {"nuts", "emcee"}
-        ``emcee`` runs ``ensembles`` (default ``chains``) independent ensembles of
+    sampler : {"nuts", "emcee", "laplace"}
+        ``laplace``: ``chains x draws`` independent draws of the Laplace approximation at
+        the MAP, checked by Pareto k (:mod:`heli_uq.inference.laplace_sampler`; ``warmup``
+        unused).  ``emcee`` runs ``ensembles`` (default ``chains``) independent ensembles of
         ``walkers`` walkers for ``warmup + draws`` steps each and keeps the last ``draws``.
     priors : PriorSet, optional
     adapt_mass_matrix, target_accept, max_tree_depth
@@ -125,9 +127,9 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
 
     problem = make_problem(record, train, test, model=model, priors=priors, error=error,
                            substeps=substeps)  # fmt: skip
-    per_chain = draws * (1 if sampler == "nuts" else walkers or 2 * problem.coords.dim + 2)
+    per_chain = draws * (walkers or 2 * problem.coords.dim + 2 if sampler == "emcee" else 1)
     check_draws_memory(problem, chains * per_chain, f"draws: {chains} chains x {draws} draws"
-                       + ("" if sampler == "nuts" else " x walkers"))  # fmt: skip
+                       + (" x walkers" if sampler == "emcee" else ""))  # fmt: skip
     start = None
     if not resume:
         stage(f"MAP: {n_starts} starts (least squares, then Newton on the log posterior; "
@@ -143,6 +145,10 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
                        resume=resume, progress=progress, start=start,
                        adapt_mass_matrix=adapt_mass_matrix, target_accept=target_accept,
                        max_tree_depth=max_tree_depth)  # fmt: skip
+    elif sampler == "laplace":
+        if resume:
+            raise ParameterError("--resume: the Laplace sampler saves nothing to resume; run it again")
+        run = run_laplace(problem, chains=chains, draws=draws, seed=seed, start=start)
     else:
         run = run_emcee(problem, out, ensembles=ensembles or chains, walkers=walkers,
                         steps=warmup + draws, burn=warmup, seed=seed, resume=resume,

@@ -12,6 +12,7 @@ from heli_uq.model.terms.base import AbstractTerm as AbstractTerm
 from heli_uq.model.terms.base import AbstractTorque as AbstractTorque
 from heli_uq.model.terms.coulomb_friction import CoulombFriction as CoulombFriction
 from heli_uq.model.terms.deadband import DeadBand as DeadBand
+from heli_uq.model.terms.feature_torque import FeatureTorque as FeatureTorque
 from heli_uq.model.terms.linear_torque import LinearTorque as LinearTorque
 from heli_uq.model.terms.neural_torque import NeuralTorque as NeuralTorque
 from heli_uq.model.terms.quadratic_drag import QuadraticDrag as QuadraticDrag
@@ -26,12 +27,14 @@ from heli_uq.model.terms.torsional_spring import TorsionalSpring as TorsionalSpr
 EFFECTS = {cls.kind: cls for cls in (DeadBand, CoulombFriction, QuadraticDrag, TorsionalSpring,
                                      QuadraticThrust, TorqueOffset)}  # fmt: skip
 #: Every term a model file or ``--effects`` may name: the vocabulary plus the neural torque
-#: of the hybrid model (not a named physical effect, so not a discovery candidate).
-TERMS = {**EFFECTS, NeuralTorque.kind: NeuralTorque}
+#: of the hybrid model and the feature torque of an equation recovered from it (not named
+#: physical effects, so not discovery candidates).
+TERMS = {**EFFECTS, NeuralTorque.kind: NeuralTorque, FeatureTorque.kind: FeatureTorque}
 
 __all__ = [
     "AbstractEffect", "AbstractInputMap", "AbstractTerm", "AbstractTorque", "AbstractMechanics",
     "ClosedFormMechanics", "LagrangianMechanics", "LinearTorque", "CoulombFriction", "DeadBand",
     "QuadraticDrag", "QuadraticThrust", "TorqueOffset", "TorsionalSpring", "NeuralTorque",
+    "FeatureTorque",
     "EFFECTS", "TERMS",
 ]  # fmt: skip

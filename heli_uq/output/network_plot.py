@@ -1,0 +1,61 @@
+"""Figure of a hybrid posterior's network torque: median and 90 % interval per grid point.
+
+For a network of the voltages the grid points are the training window's voltage pairs
+(x axis: ``u_psi`` [V], colour: ``u_theta`` [V]); for a network of states they are
+samples of the training window (x axis: time [s]).  Built without :mod:`matplotlib.pyplot`
+(see :mod:`heli_uq.output.plots`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from heli_uq.figure import new_figure, save_figure
+
+__all__ = ["plot_network_torque"]
+
+
+def plot_network_torque(idata, axis: str, path=None, *, truth=None) -> Figure:
+    """The posterior of ``nn_torque_<axis>`` (:mod:`heli_uq.output.network`).
+
+    Parameters
+    ----------
+    idata : InferenceData
+        A hybrid posterior.
+    axis : {"pitch", "yaw"}
+    path : path, optional
+        Also write the figure there (PNG).
+    truth : array, shape (k,), optional
+        A known torque at the grid points [N m] (synthetic records), drawn as crosses.
+    """
+    dim = f"nn_point_{axis}"
+    torque = np.asarray(idata.posterior[f"nn_torque_{axis}"])
+    torque = torque.reshape(-1, torque.shape[-1])
+    lo, med, hi = np.quantile(torque, [0.05, 0.5, 0.95], axis=0)
+    post = idata.posterior
+    by_time = f"{dim}_time" in post.coords
+    fig = new_figure((7.5, 4.2))
+    ax = fig.subplots()
+    if by_time:
+        x = np.asarray(post[f"{dim}_time"])
+        ax.fill_between(x, lo, hi, color="C1", alpha=0.3, label="90 % interval")
+        ax.plot(x, med, color="C1", label="posterior median")
+        ax.set_xlabel("time of the training-window sample [s]")
+    else:
+        x, colour = np.asarray(post[f"{dim}_u_psi"]), np.asarray(post[f"{dim}_u_theta"])
+        ax.errorbar(x, med, yerr=[med - lo, hi - med], fmt="none", ecolor="0.6", elinewidth=1,
+                    capsize=2, label="90 % interval", zorder=1)  # fmt: skip
+        sc = ax.scatter(x, med, c=colour, cmap="viridis", s=18, zorder=2, label="posterior median")
+        fig.colorbar(sc, ax=ax, label="u_theta [V]")
+        ax.set_xlabel("u_psi [V] (the training window's voltage pairs)")
+    if truth is not None:
+        ax.scatter(x, truth, marker="x", color="k", s=22, zorder=3, label="truth")
+    ax.axhline(0.0, color="0.3", lw=0.6)
+    ax.set_ylabel(f"network torque on {axis} [N m]")
+    ax.set_title(f"Hybrid posterior: the network's torque on {axis} "
+                 f"({torque.shape[0]} draws; projected off the linear gains)", fontsize="medium")  # fmt: skip
+    ax.legend(loc="upper left", bbox_to_anchor=(1.18, 1.0), fontsize="small")
+    if path is not None:
+        save_figure(fig, path)
+    return fig

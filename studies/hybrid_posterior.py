@@ -1,0 +1,205 @@
+"""Bayesian hybrid models on the rig record: the comparison table of issue 11.
+
+Rows, each a NUTS posterior (``heli_uq.output.sample_posterior``, iid errors) on the
+training window, predicted over the test window:
+
+* ``mechanistic``: the paper's model;
+* ``+ <effect>``: the model with the effect ``heli-uq discover`` named on the rig record
+  (``--effect AXIS:EFFECT``; default: the one in ``results/discover_rig/discovery.json``);
+* ``+ FNN(u)``, ``+ FNN(u,x,v)``: a neural torque on yaw (``--hidden`` units);
+* ``+ recovered equation``: pysindy on the FNN(u) posterior's network torque
+  (:func:`heli_uq.discovery.network_equation.recover_equation`), the network replaced by a
+  feature torque of the selected features and refitted.
+
+Columns: V of the posterior-mean simulation on the whole record [rad^2], RMSE per angle
+and 90 % coverage on train and test, the test window's log predictive density summed over
+input segments with its difference to the mechanistic row and that difference's standard
+error (:mod:`heli_uq.discovery.score`), the number of sampled parameters, R-hat (physical
+parameters and network torque; the raw weights' separately) and the wall time.  One JSON
+line per row goes to ``results/hybrid_posterior.jsonl``; the table to
+``results/hybrid_posterior.md``; the posteriors to ``--runs`` (git ignores them); the
+FNN(u) bands and network torque to ``figures/``.
+
+Usage: ``python studies/hybrid_posterior.py [--train 0:91 --test 91:131] [--rows ...]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from _study import FIGURES, RESULTS, ROOT, append_jsonl, provenance  # noqa: E402
+
+ROWS = ("mechanistic", "effect", "u", "u,x,v", "equation")
+
+
+def _parse_window(text):
+    from heli_uq.data import parse_window
+
+    return parse_window(text)
+
+
+def _discovered_effect(path: pathlib.Path):
+    if not path.exists():
+        return None
+    found = json.loads(path.read_text())
+    return None if found.get("effect") in (None, "none") else f"{found['axis']}:{found['effect']}"
+
+
+def _row_metrics(idata, summary, base_scores, blocks_test, test_slice) -> tuple[dict, np.ndarray]:
+    from heli_uq.discovery.score import block_scores, compare, gap_metrics
+
+    pp = idata.posterior_predictive
+    y_sim = np.asarray(pp["y_sim"]).reshape((-1,) + pp["y_sim"].shape[2:])
+    y_pred = np.asarray(pp["y_pred"]).reshape((-1,) + pp["y_pred"].shape[2:])
+    y_obs = np.asarray(idata.constant_data["y_obs"])
+    sigma = np.asarray(idata.posterior["sigma"]).reshape(-1, 2)
+    draws = np.asarray(pp["draw"])
+    chains = idata.posterior.sizes["chain"]
+    sig = np.asarray(idata.posterior["sigma"])[:, draws, :].reshape(-1, 2) if chains else sigma
+    full = gap_metrics(y_sim, y_pred, y_obs)
+    scores = block_scores(y_sim[:, test_slice], sig, y_obs[test_slice], blocks_test)
+    out = {"V_full": full["V"], "windows": summary["windows"], "test_score": float(scores.sum())}
+    if base_scores is not None:
+        diff, se = compare(scores, base_scores)
+        out["test_score_diff"], out["test_score_se"] = float(diff), float(se)
+    for key in ("rhat_max", "ess_bulk_min", "divergences", "rhat_max_network_torque",
+                "rhat_max_network_weights"):  # fmt: skip
+        if key in summary:
+            out[key] = summary[key]
+    out["parameters"] = len(idata.posterior.attrs["free_parameters"].split(","))
+    return out, scores
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default="experimental")
+    ap.add_argument("--train", default="0:91")
+    ap.add_argument("--test", default="91:131")
+    ap.add_argument("--rows", nargs="+", default=list(ROWS), choices=ROWS)
+    ap.add_argument("--effect", default=None, help="AXIS:EFFECT of the named-effect row")
+    ap.add_argument("--hidden", type=int, default=4)
+    ap.add_argument("--sampler", choices=["nuts", "laplace"], default="laplace",
+                    help="laplace (default: minutes; its Pareto k says whether to trust it) or nuts "
+                         "(hours for a network on the whole record)")
+    ap.add_argument("--chains", type=int, default=4)
+    ap.add_argument("--warmup", type=int, default=500)
+    ap.add_argument("--draws", type=int, default=500)
+    ap.add_argument("--runs", default=str(ROOT / "runs" / "hybrid_posterior"))
+    ap.add_argument("--out", default=str(RESULTS / "hybrid_posterior.jsonl"))
+    args = ap.parse_args(argv)
+
+    import numpyro
+
+    numpyro.set_host_device_count(args.chains)
+    from heli_uq.data import load_data
+    from heli_uq.discovery.network_equation import equation_model, recover_equation
+    from heli_uq.discovery.score import input_blocks
+    from heli_uq.model.spec import build_model, parse_effects
+    from heli_uq.output import sample_posterior
+    from heli_uq.output.network_plot import plot_network_torque
+
+    record = load_data(args.data)
+    train, test = _parse_window(args.train), _parse_window(args.test)
+    t = np.asarray(record.t)
+    test_slice = slice(int(np.searchsorted(t, test[0] - 1e-9)), int(np.searchsorted(t, test[1] - 1e-9)))
+    blocks_test = input_blocks(np.asarray(record.u)[test_slice], record.dt)
+    effect = args.effect or _discovered_effect(RESULTS / "discover_rig" / "discovery.json")
+    nn = {"effect": "neural_torque", "axis": "yaw", "hidden": args.hidden}
+    models = {"mechanistic": ("mechanistic", build_model()),
+              "effect": (f"+ {effect}", parse_effects(effect)) if effect else None,
+              "u": ("+ FNN(u)", build_model([{**nn, "inputs": "u"}])),
+              "u,x,v": ("+ FNN(u,x,v)", build_model([{**nn, "inputs": "u,x,v"}]))}  # fmt: skip
+    runs = pathlib.Path(args.runs)
+    base_scores, fnn_u = None, None
+    lines = []
+    for row in args.rows:
+        t0 = time.perf_counter()
+        recovered = None
+        if row == "equation":
+            if fnn_u is None:
+                print("equation: needs the FNN(u) row in the same run; skipped")
+                continue
+            torque = np.asarray(fnn_u.posterior["nn_torque_yaw"])
+            torque = torque.reshape(-1, torque.shape[-1])
+            dim = "nn_point_yaw"
+            points = {k: np.asarray(fnn_u.posterior[f"{dim}_{k}"]) for k in ("u_theta", "u_psi")}
+            u_train = np.asarray(fnn_u.constant_data["u"])[np.asarray(fnn_u.constant_data["train_mask"])]
+            pairs, counts = np.unique(u_train, axis=0, return_counts=True)
+            lookup = {tuple(p): c for p, c in zip(pairs, counts)}
+            weights = np.array([lookup[(a, b)] for a, b in zip(points["u_theta"], points["u_psi"])], float)
+            recovered = recover_equation(torque, points, weights, project="u")
+            label, model = "+ recovered equation", equation_model(models["u"][1], "yaw", recovered["selected"])
+        elif models.get(row) is None:
+            print(f"{row}: no discovered effect (run the discover_rig study or pass --effect); skipped")
+            continue
+        else:
+            label, model = models[row]
+        print(f"{label}: {args.sampler} ({args.chains} x ({args.warmup} + {args.draws}))", flush=True)
+        idata, summary = sample_posterior(record, runs / row.replace(",", ""), model=model, train=train,
+                                          test=test, error="iid", sampler=args.sampler,
+                                          chains=args.chains, warmup=args.warmup,
+                                          draws=args.draws, progress=False)  # fmt: skip
+        metrics, scores = _row_metrics(idata, summary, base_scores, blocks_test, test_slice)
+        if row == "mechanistic":
+            base_scores = scores
+        if row == "u":
+            fnn_u = idata
+            plot_network_torque(idata, "yaw", FIGURES / "hybrid_fnn_u_torque.png")
+        line = {"row": label, "model": model.label, "train": args.train, "test": args.test,
+                **metrics, "seconds": time.perf_counter() - t0,
+                "sampler": {"name": args.sampler, "chains": args.chains, "warmup": args.warmup,
+                            "draws": args.draws, "pareto_k": summary.get("pareto_k"),
+                            "health": summary["health"]["flags"]}}  # fmt: skip
+        if recovered is not None:
+            line["recovered"] = recovered
+        line["provenance"] = provenance(__file__, argv, line["seconds"])
+        append_jsonl(args.out, line)
+        lines.append(line)
+        print(json.dumps({k: v for k, v in line.items() if k not in ("windows", "recovered", "provenance")}),
+              flush=True)  # fmt: skip
+    _write_table(lines, pathlib.Path(args.out).with_suffix(".md"))
+    return 0
+
+
+def _sampler(info: dict) -> str:
+    text = info["name"]
+    if info.get("pareto_k") is not None:
+        text += f" (Pareto k {info['pareto_k']:.2f})"
+    return text + (f" {', '.join(info['health'])}" if info.get("health") else "")
+
+
+def _write_table(lines, path: pathlib.Path) -> None:
+    from heli_uq.io import atomic_write_text
+
+    def pct(x):
+        return f"{100 * x:.0f} %"
+
+    head = ("| model | V full [rad²] | RMSE θ / ψ train [rad] | RMSE θ / ψ test [rad] | 90 % cov. θ / ψ train "
+            "| 90 % cov. θ / ψ test | test score − mechanistic [nats] (se) | parameters | sampler | R-hat | wall |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
+    rows = [head]
+    for ln in lines:
+        tr, te = ln["windows"]["train"], ln["windows"].get("test", {})
+        diff = (f"{ln['test_score_diff']:+.0f} ({ln['test_score_se']:.0f})" if "test_score_diff" in ln else "0")
+        rhat = f"{ln.get('rhat_max', float('nan')):.3f}"
+        if "rhat_max_network_torque" in ln:
+            rhat += f" (weights {ln['rhat_max_network_weights']:.2f})"
+        rows.append(f"| {ln['row']} | {ln['V_full']:.3f} "
+                    f"| {tr['rmse']['theta']:.3f} / {tr['rmse']['psi']:.3f} "
+                    f"| {te['rmse']['theta']:.3f} / {te['rmse']['psi']:.3f} "
+                    f"| {pct(tr['coverage90']['theta'])} / {pct(tr['coverage90']['psi'])} "
+                    f"| {pct(te['coverage90']['theta'])} / {pct(te['coverage90']['psi'])} "
+                    f"| {diff} | {ln['parameters']} | {_sampler(ln['sampler'])} | {rhat} "
+                    f"| {ln['seconds'] / 60:.0f} min |")  # fmt: skip
+    atomic_write_text(path, "\n".join(rows) + "\n")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

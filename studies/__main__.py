@@ -87,7 +87,7 @@ STUDIES = (
           (_script("hybrid_rig", "--networks", "u", "--hidden", "4", "--train", "0:14", "--test", "14:20"),),
           (_script("hybrid_rig"),)),
     Study("sbc_scaling", "SBC wall time with 1 and 2 Dask workers, fresh compilation caches (scale-out)",
-          (_script("sbc_scaling", "--replicates", "2", "--duration", "1.5", "--draws", "20",
+          (_script("sbc_scaling", "--replicates", "1", "--duration", "1.5", "--draws", "20",
                    "--out", "{root}/results/sbc_scaling.jsonl"),),
           (_script("sbc_scaling", "--out", "{root}/results/sbc_scaling.jsonl"),), needs_record=False),
     Study("hybrid_posterior", "Bayesian hybrids (FNN(u), FNN(u,x,v), recovered equation) vs mechanistic on train/test (Sec. 4; challenge 2d)",

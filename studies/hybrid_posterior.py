@@ -85,9 +85,11 @@ def main(argv=None):
     ap.add_argument("--rows", nargs="+", default=list(ROWS), choices=ROWS)
     ap.add_argument("--effect", default=None, help="AXIS:EFFECT of the named-effect row")
     ap.add_argument("--hidden", type=int, default=4)
-    ap.add_argument("--sampler", choices=["nuts", "laplace"], default="laplace",
-                    help="laplace (default: minutes; its Pareto k says whether to trust it) or nuts "
-                         "(hours for a network on the whole record)")
+    ap.add_argument("--sampler", choices=["nuts", "laplace"], default="nuts",
+                    help="nuts (default) or laplace (minutes; its Pareto k says whether to trust it)")
+    ap.add_argument("--nn-posterior", choices=["full", "last-layer"], default="full",
+                    help="the networks' posterior: every weight (default), or the output weights "
+                         "with the hidden layer trained and fixed")
     ap.add_argument("--chains", type=int, default=4)
     ap.add_argument("--warmup", type=int, default=500)
     ap.add_argument("--draws", type=int, default=500)
@@ -144,6 +146,7 @@ def main(argv=None):
         print(f"{label}: {args.sampler} ({args.chains} x ({args.warmup} + {args.draws}))", flush=True)
         idata, summary = sample_posterior(record, runs / row.replace(",", ""), model=model, train=train,
                                           test=test, error="iid", sampler=args.sampler,
+                                          network_posterior=args.nn_posterior,
                                           chains=args.chains, warmup=args.warmup,
                                           draws=args.draws, progress=False)  # fmt: skip
         metrics, scores = _row_metrics(idata, summary, base_scores, blocks_test, test_slice)

@@ -42,7 +42,8 @@ def hybrid_run(tmp_path_factory):
     path = rec.to_csv(tmp / "rec.csv")
     out = tmp / "out"
     # m fixed at the truth pins the common inertia scale, so the torque [N m] is identified
-    code = main(["sample", "--data", str(path), "--model", "hybrid", "--hidden", "2", "--error", "iid",
+    code = main(["sample", "--data", str(path), "--model", "hybrid", "--nn-posterior", "full",
+                 "--hidden", "2", "--error", "iid",
                  "--fix", f"m={values['m']}", "--chains", "2", "--warmup", "100", "--draws", "100",
                  "--no-progress", "--out", str(out)])  # fmt: skip
     return code, out, rec, model, values
@@ -129,3 +130,24 @@ def test_a_network_that_blows_up_is_a_rejected_proposal():
     assert np.isfinite(good)
     assert potential_with_output_weights(1e6) > good + 1e6
     assert potential_with_output_weights(1e300) == np.inf
+
+
+@pytest.mark.slow
+def test_last_layer_fixes_the_trained_hidden_layer_and_samples_the_output_weights():
+    """--nn-posterior last-layer: training from the base model's MAP lowers V, every hidden
+    weight and bias is fixed at its trained value, the output weights stay free."""
+    from heli_uq.output.last_layer import last_layer_setup
+    from heli_uq.probability import PriorSet
+
+    rec, _, _ = _truth_record()
+    model = build_model([{"effect": "neural_torque", "axis": "yaw", "hidden": 2}])
+    priors, guesses, info = last_layer_setup(rec, (0.0, 10.0), None, model=model,
+                                             priors=PriorSet.default(model), error="iid")  # fmt: skip
+    assert info["v_trained"] <= info["v_base"]
+    hidden = [n for n in model.names if n.startswith(("nn_W_", "nn_b_"))]
+    outputs = [n for n in model.names if n.startswith("nn_w_")]
+    assert hidden and outputs
+    for n in hidden:
+        assert not priors.params[n].free and priors.params[n].a == pytest.approx(guesses[0][n])
+    assert all(priors.params[n].free for n in outputs)
+    assert all(priors.params[n].free for n in ("m", "K_psi_psi"))

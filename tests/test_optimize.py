@@ -100,3 +100,22 @@ def test_fd_hessian_is_nan_where_no_step_is_finite():
         return x if np.all(x == 0) else np.full(2, np.nan)
 
     assert np.all(np.isnan(_fd_hessian(grad, np.zeros(2))[:, 0]))
+
+
+def test_leave_saddles_moves_from_a_saddle_to_a_minimum():
+    """-log p = (x0^2 - 1)^2 + x1^2: x = 0 is a saddle (Hessian diag(-4, 2)), where Newton
+    with |eigenvalues| stops (zero gradient); the minima are x0 = +-1.  Two hidden units
+    that do the same thing give a network's posterior such points."""
+    from heli_uq.inference.map import leave_saddles
+
+    def potential(x):
+        return (x[0] ** 2 - 1.0) ** 2 + x[1] ** 2
+
+    density = LogDensity(None, potential, None, np.zeros(2))
+    stuck = newton_polish(density, np.zeros(2))
+    assert np.allclose(stuck[0], 0.0)  # the polish alone does not leave the saddle
+    x, value, _, decrement, escapes = leave_saddles(density, np.zeros(2))
+    assert escapes == 1 and abs(abs(x[0]) - 1.0) < 1e-6 and abs(x[1]) < 1e-6
+    assert value < 1e-10 and decrement < 1e-10
+    # at a minimum nothing moves
+    assert leave_saddles(density, x)[4] == 0

@@ -42,7 +42,6 @@ from collections.abc import Callable, Iterable
 import jax
 import numpy as np
 
-from heli_uq import __version__
 from heli_uq.calibration.ranks import thinned_ranks
 from heli_uq.errors import DataFormatError, ParameterError
 from heli_uq.executor import TaskFailed, check_scheduler, run_tasks
@@ -65,8 +64,7 @@ X0_ANGLES = ("theta0", "psi0")
 #: whose angles leave |angle| < MAX_ANGLE [rad], is redrawn).
 MAX_REDRAWS = 100
 MAX_ANGLE = 50.0
-#: Central posterior interval whose coverage of the truth is recorded.
-COVERAGE_LEVEL = 0.90
+COVERAGE_LEVEL = 0.90  # central posterior interval whose coverage of the truth is recorded
 #: The settings of a run directory (a rerun under other settings is refused).
 SETTINGS_FILE = "settings.json"
 #: Replicates whose task raised, ``{"r": "<Type>: <message>"}`` (absent when none did).
@@ -193,7 +191,9 @@ def draw_replicate(r: int, priors: PriorSet, duration: float):
 
 
 def _provenance(wall_s: float) -> dict:
-    return {"heli_uq": __version__, "jax": jax.__version__, "wall_s": float(wall_s),
+    import heli_uq
+
+    return {"heli_uq": heli_uq.__version__, "jax": jax.__version__, "wall_s": float(wall_s),
             "time": time.strftime("%Y-%m-%dT%H:%M:%S")}  # fmt: skip
 
 

@@ -64,6 +64,11 @@ def add_model_options(p) -> None:
     p.add_argument("--hidden", type=int, default=None,
                    help=f"hybrid: hidden units per network (default: {DEFAULT_HIDDEN}; the paper "
                         "used 16)")
+    p.add_argument("--nn-posterior", choices=["full", "last-layer"], default=None,
+                   help="hybrid: 'full' (default) samples every weight (NUTS saturates its trees: "
+                        "hours on the rig record); 'last-layer' trains the network, fixes its "
+                        "hidden layer and samples its output weights with the physics (fast and "
+                        "converged, but its band holds the true curve less often)")
     p.add_argument("--nn-axes", default=None, metavar="yaw|pitch|pitch,yaw",
                    help="hybrid: the axes that get a network (default: yaw, the axis the "
                         "paper's network corrected)")
@@ -87,7 +92,7 @@ def _with_networks(args, model):
     out the constant where the axis has a torque offset, which then owns it)."""
     from heli_uq.model.spec import build_model
 
-    given = [f"--{n.replace('_', '-')}" for n in ("nn_inputs", "hidden", "nn_axes")
+    given = [f"--{n.replace('_', '-')}" for n in ("nn_inputs", "hidden", "nn_axes", "nn_posterior")
              if getattr(args, n, None) is not None]  # fmt: skip
     if getattr(args, "model", "mechanistic") != "hybrid":
         if given:

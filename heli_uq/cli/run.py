@@ -95,6 +95,7 @@ def cmd_run(args) -> int:
         record, post, model=model, train=(t0, split), test=(split, t_end), error="iid",
         chains=args.chains, warmup=args.warmup, draws=args.draws, seed=args.seed,
         progress=not args.no_progress, resume=args.resume,
+        network_posterior=args.nn_posterior or "full",
     )  # fmt: skip
     keys = ("rhat_max", "ess_bulk_min", "divergences", "coverage90", "coverage90_test", "wall_s")
     print(json.dumps({k: summary[k] for k in keys if k in summary}))

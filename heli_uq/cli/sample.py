@@ -49,7 +49,7 @@ def cmd_sample(args) -> int:
         priors=priors, chains=args.chains, warmup=args.warmup, draws=args.draws,
         seed=args.seed, resume=args.resume, progress=not args.no_progress,
         walkers=args.walkers, adapt_mass_matrix=args.adapt_mass_matrix == "on",
-        target_accept=target_accept,
+        target_accept=target_accept, network_posterior=args.nn_posterior or "full",
     )  # fmt: skip
     keys = ("rhat_max", "ess_bulk_min", "ess_tail_min", "divergences", "rmse", "coverage90",
             "rmse_test", "coverage90_test", "solver_error_rad", "wall_s", "rhat_max_network_torque",

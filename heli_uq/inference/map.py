@@ -231,7 +231,9 @@ def leave_saddles(density: LogDensity, x: np.ndarray, rounds: int = SADDLE_ROUND
     ``lam`` (eigenvector ``v``), step to whichever of ``x +- t v`` is lower, with ``t`` from
     ``1 / sqrt(|lam|)`` halving until ``-log p`` falls, and polish again.
 
-    Returns ``(x, value, max |grad|, newton decrement, rounds taken)``.
+    Returns ``(x, value, max |grad|, newton decrement, escapes)``; with no escape (a
+    minimum already, or no lower point along the direction) ``x`` is unchanged and the
+    gradient and decrement are NaN (not computed).
     """
     f = density.potential_jit
     x = np.asarray(x, dtype=float)
@@ -257,7 +259,7 @@ def leave_saddles(density: LogDensity, x: np.ndarray, rounds: int = SADDLE_ROUND
         if best is None:
             return x, value, grad_max, decrement, k
         x, value, grad_max, decrement, _ = newton_polish(density, best[0], polish_steps)
-    return x, value, grad_max, decrement, rounds
+    return x, value, grad_max, decrement, rounds  # still a saddle after every round
 
 
 def laplace(density: LogDensity, x: np.ndarray):

@@ -314,7 +314,9 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
         )
     x_map, value, grad_max, decrement = result.x, result.value, result.grad_max, result.newton_decrement
     if network:  # a capped polish of a non-convex posterior may stop at a saddle
-        x_map, value, grad_max, decrement, _ = leave_saddles(density, x_map)
+        moved = leave_saddles(density, x_map)
+        if moved[4] > 0:
+            x_map, value, grad_max, decrement = moved[:4]
     for _ in range(3):  # raise the substeps until the MAP's stiffness is covered
         sites = density.unravel(jnp.asarray(x_map))
         phys = {k: float(v) for k, v in problem.coords.to_physical(_full_z(problem, sites)).items()}

@@ -55,7 +55,7 @@ def plot_network_torque(idata, axis: str, path=None, *, truth=None) -> Figure:
     ax.set_ylabel(f"network torque on {axis} [N m]")
     ax.set_title(f"Hybrid posterior: the network's torque on {axis} "
                  f"({torque.shape[0]} draws; projected off the linear gains)", fontsize="medium")  # fmt: skip
-    ax.legend(loc="upper left", bbox_to_anchor=(1.18, 1.0), fontsize="small")
+    ax.legend(loc="best", fontsize="small", framealpha=0.8)
     if path is not None:
         save_figure(fig, path)
     return fig

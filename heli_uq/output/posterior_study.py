@@ -28,7 +28,10 @@ from heli_uq.model.tables import X0_NAMES
 from heli_uq.output.diagnostics import summarize, summary_table
 from heli_uq.output.health import check_health
 from heli_uq.output.inference_data import save_netcdf, to_inference_data
+from heli_uq.output.last_layer import NETWORK_POSTERIORS, last_layer_setup
+from heli_uq.output.network import network_terms
 from heli_uq.output.plots import plot_bands, save_figure
+from heli_uq.probability.priors import PriorSet
 from heli_uq.probability.problem import make_problem
 from heli_uq.simulation.reference import solver_error
 
@@ -83,7 +86,7 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
                      draws=1000, seed=0, resume=False, progress=True, walkers=None,
                      ensembles=None, n_starts=4, adapt_mass_matrix=True,
                      target_accept=TARGET_ACCEPT, substeps=None, log=None,
-                     max_tree_depth=8, guesses=()):  # fmt: skip
+                     max_tree_depth=8, guesses=(), network_posterior="full"):  # fmt: skip
     """Run the whole posterior study and write its files; returns ``(idata, summary)``.
 
     Parameters
@@ -107,6 +110,11 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     guesses : sequence of dict, optional
         MAP starts tried first (physical parameters and initial state, e.g. a fit of the
         same model on a nearby window), before the model's own start values.
+    network_posterior : {"full", "last-layer"}
+        For a model with a neural term: sample every weight (NUTS saturates its trees, slow),
+        or fix the hidden layers at jointly trained values and sample the output weights
+        with the physics (:mod:`heli_uq.output.last_layer`: fast, converges, but its band
+        holds the curve less often); ignored without one.
     log : callable, optional
         Called with one line per stage (``"[  12 s] MAP: ..."``, elapsed time first);
         default: the ``logging`` INFO of this module (:mod:`heli_uq.log`).
@@ -125,6 +133,18 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     def stage(text: str) -> None:
         log(f"[{time.perf_counter() - t0:5.0f} s] {text}")
 
+    if network_posterior not in NETWORK_POSTERIORS:
+        raise ParameterError(f"network_posterior: expected one of {NETWORK_POSTERIORS}, "
+                             f"found {network_posterior!r}")  # fmt: skip
+    last_layer = None
+    if network_posterior == "last-layer" and model is not None and network_terms(model) and not resume:
+        priors = PriorSet.default(model) if priors is None else priors
+        priors, trained, last_layer = last_layer_setup(record, train, test, model=model, priors=priors,
+                                                       error=error, substeps=substeps, seed=seed,
+                                                       log=stage)  # fmt: skip
+        guesses = [*trained, *guesses]
+        stage(f"last layer: V {last_layer['v_base']:.4g} -> {last_layer['v_trained']:.4g} rad^2 in "
+              f"{last_layer['train_seconds']:.0f} s; hidden layers fixed")  # fmt: skip
     problem = make_problem(record, train, test, model=model, priors=priors, error=error,
                            substeps=substeps)  # fmt: skip
     per_chain = draws * (walkers or 2 * problem.coords.dim + 2 if sampler == "emcee" else 1)
@@ -165,6 +185,8 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
                       f"draw of highest density (tolerance {SOLVER_TOL:g}); rerun with more "
                       "substeps",
                       RuntimeWarning, stacklevel=2)  # fmt: skip
+    if last_layer is not None:
+        summary["last_layer"] = last_layer
     summary["health"] = check_health(summary, solver_tol=SOLVER_TOL)
     summary["wall_s"] = time.perf_counter() - t0
     stage("writing posterior.nc, summary.csv, summary.json, bands.png")

@@ -59,10 +59,8 @@ def _row_metrics(idata, summary, base_scores, blocks_test, test_slice) -> tuple[
     y_sim = np.asarray(pp["y_sim"]).reshape((-1,) + pp["y_sim"].shape[2:])
     y_pred = np.asarray(pp["y_pred"]).reshape((-1,) + pp["y_pred"].shape[2:])
     y_obs = np.asarray(idata.constant_data["y_obs"])
-    sigma = np.asarray(idata.posterior["sigma"]).reshape(-1, 2)
-    draws = np.asarray(pp["draw"])
-    chains = idata.posterior.sizes["chain"]
-    sig = np.asarray(idata.posterior["sigma"])[:, draws, :].reshape(-1, 2) if chains else sigma
+    # the residual scales of the predictive draws (a thinned subset, indexed by 'draw')
+    sig = np.asarray(idata.posterior["sigma"])[:, np.asarray(pp["draw"]), :].reshape(-1, 2)
     full = gap_metrics(y_sim, y_pred, y_obs)
     scores = block_scores(y_sim[:, test_slice], sig, y_obs[test_slice], blocks_test)
     out = {"V_full": full["V"], "windows": summary["windows"], "test_score": float(scores.sum())}

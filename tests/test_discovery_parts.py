@@ -58,6 +58,30 @@ def test_probe_values_of_scaled_effects_follow_the_fits_axis_inertia():
         n: model.parameter(n).start_value() for n in new}
 
 
+def test_warm_starts_probe_next_to_the_current_fit_and_next_to_the_rig_fit():
+    # A hidden effect can trap the current fit in a basin no local move leaves (pitch
+    # friction: the model without it explains pitch with K_theta_theta/M11 = 0.08, the
+    # truth 3.75), so a candidate also starts from the shipped rig fit.
+    from heli_uq.discovery.candidates import probe_values, warm_starts
+
+    effects = ["pitch:coulomb_friction"]
+    model = build_model(effects)
+    scaled = {p.name for p in model.parameters() if p.scales_with_inertia}
+    current = {k: float(v) * (7.0 if k in scaled else 1.0) for k, v in RIG_FIT.items()}
+    current["theta_0"] = -0.3  # a state of the current fit that the rig fit does not set
+    starts = warm_starts(current, effects, {"F_c_pitch": 0.004})
+    assert len(starts) == 3
+    probe, seeded, rig = starts
+    assert probe == {**current, **probe_values(model, current, ["F_c_pitch"])}
+    assert seeded == {**probe, "F_c_pitch": 0.004}
+    assert {k: rig[k] for k in RIG_FIT} == RIG_FIT and rig["theta_0"] == -0.3
+    assert rig["F_c_pitch"] == pytest.approx(probe["F_c_pitch"] / 7.0, rel=1e-12)
+    # an implied value outside the support, and a current fit that is the rig fit: one start
+    at_rig = {**RIG_FIT, "theta_0": -0.3}
+    assert warm_starts(at_rig, effects, {"F_c_pitch": -1.0}) == (
+        {**at_rig, **probe_values(model, at_rig, ["F_c_pitch"])},)
+
+
 def test_input_blocks_follow_voltage_changes_and_merge_short_runs():
     dt = 0.01
     u = np.zeros((1000, 2))

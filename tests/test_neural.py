@@ -89,6 +89,24 @@ def test_description_round_trip_keeps_the_record_scaling(adapted):
     assert again.adapted(other.u, other.y, other.dt) == model
 
 
+def test_with_effects_keeps_the_rest_and_readapts_to_a_new_record(adapted):
+    # with_effects rebuilds a model without some effects (the base of a hybrid, or the
+    # network replaced by an equation): the mechanics and the other effects are kept,
+    # and a kept network drops its record's scaling, so it adapts to the next record.
+    from heli_uq.model import with_effects
+
+    rec, model, term = adapted
+    lagrangian = build_model([term.describe(), "pitch:torque_offset"], mechanics="lagrangian")
+    base = with_effects(lagrangian, lambda e: e["effect"] != "neural_torque")
+    assert base.describe() == build_model(["pitch:torque_offset"], mechanics="lagrangian").describe()
+    kept = with_effects(lagrangian, lambda e: e["effect"] == "neural_torque", ["yaw:quadratic_drag"])
+    assert [t.label for t in kept.effects] == ["neural_torque(yaw)", "quadratic_drag(yaw)"]
+    assert kept.effects[0].center == () and kept.mechanics.kind == "lagrangian"
+    other = _record(seconds=20.0, seed=9)
+    again = kept.adapted(other.u, other.y, other.dt).effects[0]
+    assert again.center != term.center and again.hidden == term.hidden
+
+
 def test_bad_options_are_refused():
     for item, needle in (({"effect": "neural_torque", "axis": "yaw", "inputs": "x"}, "inputs"),
                          ({"effect": "neural_torque", "axis": "yaw", "hidden": 0}, "hidden"),

@@ -39,7 +39,7 @@ import numpy as np
 import pysindy as ps
 
 from heli_uq.errors import ParameterError
-from heli_uq.model.spec import build_model
+from heli_uq.model.spec import with_effects
 from heli_uq.model.terms.feature_torque import FEATURES, coefficient_name
 
 __all__ = ["recover_equation", "equation_model", "LIBRARY", "INCLUDE"]
@@ -150,14 +150,6 @@ def recover_equation(torque, points: dict, weights=None, *, project: str = "u", 
 def equation_model(model, axis: str, selected) -> object:
     """``model`` with its neural term on ``axis`` replaced by a feature torque of
     ``selected`` (the mechanistic model alone when nothing was selected)."""
-    effects = [e for e in model.describe()["effects"]
-               if not (e["effect"] == "neural_torque" and e["axis"] == axis)]  # fmt: skip
-    if selected:
-        effects.append({"effect": "feature_torque", "axis": axis, "features": list(selected)})
-    for e in effects:  # a stored network's record-derived options are not part of the spec
-        if e["effect"] == "neural_torque":
-            for key in ("center", "scale", "projection", "reference"):
-                e.pop(key, None)
-    desc = model.describe()
-    return build_model(effects, mechanics=desc.get("mechanics", "closed_form"),
-                       linear_torque=desc.get("linear_torque", True), where="equation_model")
+    add = [{"effect": "feature_torque", "axis": axis, "features": list(selected)}] if selected else []
+    return with_effects(model, lambda e: not (e["effect"] == "neural_torque" and e["axis"] == axis),
+                        add, where="equation_model")  # fmt: skip

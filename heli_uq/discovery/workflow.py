@@ -50,8 +50,7 @@ import time
 import numpy as np
 
 from heli_uq.data import Experiment
-from heli_uq.discovery.candidates import (FitTask, fit_and_score, fitted_predictive, probe_values,
-                                         score_fitted)
+from heli_uq.discovery.candidates import FitTask, fit_and_score, fitted_predictive, score_fitted, warm_starts
 from heli_uq.discovery.decide import choose, pair_members, rank
 from heli_uq.discovery.implied import base_features, effect_features, implied_torque
 from heli_uq.discovery.locate import locate
@@ -61,7 +60,7 @@ from heli_uq.errors import ParameterError
 from heli_uq.executor import TaskFailed, check_scheduler, run_tasks
 from heli_uq.io import atomic_write_text
 from heli_uq.log import progress_log
-from heli_uq.model import AXES, EFFECTS, build_model
+from heli_uq.model import AXES, EFFECTS, RIG_FIT, build_model
 
 __all__ = ["discover", "Budget", "BUDGETS", "FIT_FRACTION", "MIN_SECONDS"]  # fmt: skip
 
@@ -78,9 +77,9 @@ MIN_SECONDS = 20.0
 class Budget:
     """Effort of a discovery run.
 
-    ``n_starts``: MAP starts of the base model; ``cold_starts``: starts of a candidate
-    beyond its warm guesses (the current model's MAP with the new parameters at their
-    probe and implied values); ``draws``: Laplace draws per candidate; ``pair_top``: how
+    ``n_starts``: MAP starts of the base model after the one from the shipped rig fit;
+    ``cold_starts``: starts of a candidate beyond its warm ones
+    (:func:`~heli_uq.discovery.candidates.warm_starts`); ``draws``: Laplace draws per candidate; ``pair_top``: how
     many of the best singles are paired; ``chains, warmup, samples``: the NUTS refit;
     ``nuts_before``: the base model gets a NUTS posterior too (else its Laplace
     approximation is *before*); ``newton_steps``: of each MAP polish; ``max_tree_depth``:
@@ -134,27 +133,6 @@ def _candidate_effects(current: list[str], vocabulary=None) -> list[str]:
     have = set(current)
     pool = vocabulary or [f"{axis}:{kind}" for axis in AXES for kind in EFFECTS]
     return [e for e in pool if e not in have]
-
-
-def _clip_to_support(model, values: dict) -> dict:
-    out = {}
-    for par in model.parameters():
-        if par.name in values and np.isfinite(values[par.name]):
-            lo, hi = par.interval
-            v = float(np.clip(values[par.name], lo, hi))
-            out[par.name] = v if (lo < v < hi) or par.support == "real" else par.start_value()
-    return out
-
-
-def _guesses(current_map: dict, effects: list[str], implied: dict) -> tuple[dict, ...]:
-    """Warm starts: the current MAP with the new effects at their probe values
-    (:func:`~heli_uq.discovery.candidates.probe_values`), and at the values the sparse
-    regression implies (clipped into their supports)."""
-    model = build_model(effects)
-    new = [p.name for p in model.parameters() if p.name not in current_map]
-    probe = {**current_map, **probe_values(model, current_map, new)}
-    seeded = {**probe, **_clip_to_support(model, {n: implied.get(n, np.nan) for n in new})}
-    return (probe, seeded) if seeded != probe else (probe,)
 
 
 def _nested_guess(results: dict, current_res: dict, current_map: dict) -> dict | None:
@@ -288,8 +266,8 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     out.mkdir(parents=True, exist_ok=True)
     store = _Store(out)
 
-    def task(effects, guesses=()):
-        starts = cost.n_starts if not guesses else len(guesses) + cost.cold_starts
+    def task(effects, guesses=(), cold=cost.cold_starts):
+        starts = len(guesses) + cold
         return FitTask(record, fit_w, score_w, tuple(effects), tuple(guesses), seed, starts,
                        cost.draws, cost.newton_steps)  # fmt: skip
 
@@ -301,7 +279,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
 
     # 1-2. base fit and where it fails
     say(f"fitting the base model ({build_model(base_effects).label}) on {fit_w[0]:g}:{fit_w[1]:g} s")
-    base_task = task(base_effects)
+    base_task = task(base_effects, (RIG_FIT,), cold=cost.n_starts)  # the rig's fit, then cold starts
     base_fit = fitted_predictive(base_task)
     base = score_fitted(base_fit, base_task)
     c, d = base_fit.start.problem.windows()["test"]
@@ -330,7 +308,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     while len(current) - len(base_effects) < max_effects:
         singles = {}
         for e in _candidate_effects(current, vocabulary):
-            singles[_key(current + [e])] = task(current + [e], _guesses(current_map, current + [e],
+            singles[_key(current + [e])] = task(current + [e], warm_starts(current_map, current + [e],
                                                                         implied.get(e, {})))  # fmt: skip
         results = _run_round(singles, store, record, scheduler, say)
         if not restarted:
@@ -364,7 +342,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
                 effects = current + [ea, eb]
                 guess = {**results[a]["map"], **{k: v for k, v in results[b]["map"].items()
                                                  if k not in results[a]["map"]}}  # fmt: skip
-                pairs[_key(effects)] = task(effects, (guess,) + _guesses(current_map, effects, {}))
+                pairs[_key(effects)] = task(effects, (guess,) + warm_starts(current_map, effects, {}))
             pair_results = _run_round(pairs, store, record, scheduler, say)
             results.update(pair_results)
             rows = rank(results, current_res, n_scored)

@@ -14,6 +14,7 @@ from heli_uq.model.spec import build_model as build_model
 from heli_uq.model.spec import load_model_file as load_model_file
 from heli_uq.model.spec import model_from_description as model_from_description
 from heli_uq.model.spec import parse_effects as parse_effects
+from heli_uq.model.spec import with_effects as with_effects
 from heli_uq.model.tables import RIG_FIT as RIG_FIT
 from heli_uq.model.tables import RIG_FIT_X0 as RIG_FIT_X0
 from heli_uq.model.tables import STATE_NAMES as STATE_NAMES
@@ -37,7 +38,7 @@ from heli_uq.model.terms.rigid_body import total_energy as total_energy
 
 __all__ = [
     "HeliModel", "momentum_vector_field", "AXES", "Parameter", "Prior", "build_model",
-    "load_model_file", "model_from_description", "parse_effects", "STATE_NAMES", "TABLE1",
+    "load_model_file", "model_from_description", "parse_effects", "with_effects", "STATE_NAMES", "TABLE1",
     "TABLE2", "TABLE3_X0", "RIG_FIT", "RIG_FIT_X0", "X0_NAMES", "load_params_json", "parse_x0", "EFFECTS",
     "ClosedFormMechanics", "CoulombFriction", "DeadBand", "LagrangianMechanics", "LinearTorque",
     "QuadraticDrag", "QuadraticThrust", "TorqueOffset", "TorsionalSpring", "total_energy",

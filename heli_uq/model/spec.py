@@ -26,7 +26,7 @@ from heli_uq.model.parameter import AXES
 from heli_uq.model.terms import TERMS, ClosedFormMechanics, LagrangianMechanics, LinearTorque
 from heli_uq.model.terms.base import AbstractInputMap
 
-__all__ = ["parse_effects", "build_model", "model_from_description", "load_model_file"]
+__all__ = ["parse_effects", "build_model", "model_from_description", "load_model_file", "with_effects"]
 
 _MECHANICS = {"closed_form": ClosedFormMechanics, "lagrangian": LagrangianMechanics}
 _FILE_KEYS = ("effects", "mechanics", "linear_torque")
@@ -87,6 +87,31 @@ def build_model(effects=(), *, mechanics: str = "closed_form", linear_torque: bo
     if not base + torques:
         raise ParameterError(f"{where}: the model needs at least one torque term")
     return HeliModel(_MECHANICS[mechanics](), inputs, base + torques)
+
+
+#: Options of a stored term that were derived from its record (a network's input scaling and
+#: projection); a rebuilt model adapts to its record again.
+_RECORD_OPTIONS = ("center", "scale", "projection", "reference")
+
+
+def with_effects(model: HeliModel, keep=lambda effect: True, add=(), *, where: str = "model") -> HeliModel:
+    """``model`` with only the effects ``keep`` accepts, then ``add``.
+
+    Parameters
+    ----------
+    model : HeliModel
+    keep : callable
+        Called with each effect's description dict (``{"effect", "axis", options...}``).
+    add : iterable
+        Effects appended, as in :func:`build_model`.
+
+    The mechanics and the linear torque are ``model``'s; options derived from a record (a
+    network's scaling and projection) are dropped, so the result adapts to its record.
+    """
+    desc = model.describe()
+    effects = [{k: v for k, v in e.items() if k not in _RECORD_OPTIONS} for e in desc["effects"] if keep(e)]
+    return build_model(effects + list(add), mechanics=desc.get("mechanics", "closed_form"),
+                       linear_torque=desc.get("linear_torque", True), where=where)  # fmt: skip
 
 
 def parse_effects(text: str | None, *, where: str = "effects") -> HeliModel:

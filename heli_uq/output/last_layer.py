@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from heli_uq.inference import prepare_start, train
 from heli_uq.model.prior import Prior
-from heli_uq.model.spec import build_model
+from heli_uq.model.spec import with_effects
 from heli_uq.output.network import network_terms
 from heli_uq.probability import PriorSet, make_problem
 
@@ -35,13 +35,6 @@ __all__ = ["last_layer_setup", "NETWORK_POSTERIORS"]
 
 #: What ``sample_posterior(network_posterior=...)`` samples of a network.
 NETWORK_POSTERIORS = ("full", "last-layer")
-
-
-def _base_model(model):
-    desc = model.describe()
-    effects = [e for e in desc["effects"] if e["effect"] != "neural_torque"]
-    return build_model(effects, mechanics=desc.get("mechanics", "closed_form"),
-                       linear_torque=desc.get("linear_torque", True), where="last_layer_setup")  # fmt: skip
 
 
 def last_layer_setup(record, train_window, test_window, *, model, priors: PriorSet, error: str,
@@ -58,7 +51,7 @@ def last_layer_setup(record, train_window, test_window, *, model, priors: PriorS
         ``base_map_value``, ``v_base``, ``v_trained`` [rad^2] and ``train_seconds``.
     """
     log = log or (lambda text: None)
-    base = _base_model(model)
+    base = with_effects(model, lambda e: e["effect"] != "neural_torque", where="last_layer_setup")
     base_priors = PriorSet({n: priors.params[n] for n in base.names}, dict(priors.x0), dict(priors.noise))
     base_problem = make_problem(record, train_window, test_window, model=base, priors=base_priors,
                                 error=error, substeps=substeps)  # fmt: skip

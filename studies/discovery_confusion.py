@@ -7,7 +7,8 @@ effect of the vocabulary hidden on one axis at the value in :data:`HIDDEN` (or n
 inputs a random staircase in the rig's voltage ranges held 3-14 s (``rig_steps``) or the
 published profile (``published``, needs the rig record), iid noise 3 mrad on pitch and
 8 mrad on yaw, quantised by a 4096-count encoder.  Then ``heli_uq.discovery.discover``
-runs on it (``--budget``, train 0-91 s / test 91-131 s).
+runs on it (``--budget``, train 0-91 s / test 91-131 s).  A case of two effects joined by
+``+`` (``yaw:torque_offset+pitch:deadband``) hides both and runs with ``max_effects=2``.
 
 Writes one JSON line per case to ``--out`` (default
 ``studies/results/discovery_confusion.jsonl``): the truth, what was named, whether each
@@ -52,7 +53,7 @@ NOISE = (0.003, 0.008)
 
 def make_record(case: str, inputs: str, seed: int, seconds: float):
     """The synthetic record of ``case`` (``"none"`` or ``"axis:effect"``) and its truth."""
-    effects = [] if case == "none" else [case]
+    effects = [] if case == "none" else case.split("+")
     model = build_model(effects)
     truth = dict(RIG_FIT)
     for term in model.effects:
@@ -73,16 +74,20 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         res = discover(rec, tmp, train=(0.0, split), test=(split, args.seconds), budget=args.budget,
-                       seed=seed, scheduler=args.scheduler, candidates=args.candidates)  # fmt: skip
-    named = "none" if res["effect"] == "none" else f"{res['axis']}:{res['effect']}"
+                       seed=seed, scheduler=args.scheduler, candidates=args.candidates,
+                       max_effects=max(1, len(model.effects)))  # fmt: skip
+    added = {f"{a['axis']}:{a['effect']}": a["parameters"] for a in res["added"]}
+    named = "+".join(added) or "none"
     covered = {}
-    if named == case and model.effects:
-        term = model.effects[0]
-        for p in term.parameters():
-            ci = res["parameters"][p.bare]["ci95"]
-            covered[p.bare] = {"truth": truth[p.name], "ci95": ci, "covered": ci[0] <= truth[p.name] <= ci[1]}
+    if set(added) == set(case.split("+")):
+        for term in model.effects:
+            for p in term.parameters():
+                ci = added[f"{term.axis}:{term.kind}"][p.bare]["ci95"]
+                covered[p.name] = {"truth": truth[p.name], "ci95": ci,
+                                   "covered": ci[0] <= truth[p.name] <= ci[1]}
     best = next((c for c in res["candidates"] if c.get("score") is not None), None)
-    return {"case": case, "inputs": inputs, "seed": seed, "named": named, "correct": named == case,
+    return {"case": case, "inputs": inputs, "seed": seed, "named": named,
+            "correct": set(added) == set(case.split("+")) if added else case == "none",
             "covered": covered, "best": best and {k: best[k] for k in ("effect", "axis", "score",
                                                                         "score_se", "score_per_sample")},
             "gap_before": res["gap_before"], "gap_after": res["gap_after"], "decision": res["decision"],
@@ -112,8 +117,17 @@ def confusion(path) -> str:
 
 def main(argv=None) -> int:
     all_cases = ["none"] + [f"{a}:{k}" for a in AXES for k in EFFECTS]
+
+    def case(text):  # "none", "axis:effect" or two of them joined by "+"
+        parts = text.split("+")
+        known = set(parts) <= set(all_cases[1:]) and len(set(parts)) == len(parts) <= 2
+        if text != "none" and not known:
+            raise argparse.ArgumentTypeError(f"{text!r}: expected none, axis:effect or two joined by +")
+        return text
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cases", nargs="+", default=all_cases, choices=all_cases)
+    ap.add_argument("--cases", nargs="+", default=all_cases, type=case,
+                    help="cases; two effects joined by + are hidden together (max_effects 2)")
     ap.add_argument("--inputs", nargs="+", default=["rig_steps"], choices=["rig_steps", "published"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[1])
     ap.add_argument("--seconds", type=float, default=131.0)

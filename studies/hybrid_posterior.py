@@ -68,7 +68,7 @@ def _row_metrics(idata, summary, base_scores, blocks_test, test_slice) -> tuple[
         diff, se = compare(scores, base_scores)
         out["test_score_diff"], out["test_score_se"] = float(diff), float(se)
     for key in ("rhat_max", "ess_bulk_min", "divergences", "rhat_max_network_torque",
-                "rhat_max_network_weights"):  # fmt: skip
+                "rhat_max_network_weights", "gain_trade_off", "last_layer"):  # fmt: skip
         if key in summary:
             out[key] = summary[key]
     out["parameters"] = len(idata.posterior.attrs["free_parameters"].split(","))
@@ -83,6 +83,9 @@ def main(argv=None):
     ap.add_argument("--rows", nargs="+", default=list(ROWS), choices=ROWS)
     ap.add_argument("--effect", default=None, help="AXIS:EFFECT of the named-effect row")
     ap.add_argument("--hidden", type=int, default=4)
+    ap.add_argument("--project", choices=["u", "1,u", "none"], default="u",
+                    help="what the FNN(u) output is made orthogonal to (none: the gains and the "
+                         "network trade off; the row's gain_trade_off shows by how much)")
     ap.add_argument("--sampler", choices=["nuts", "laplace"], default="nuts",
                     help="nuts (default) or laplace (minutes; its Pareto k says whether to trust it)")
     ap.add_argument("--nn-posterior", choices=["full", "last-layer"], default="full",
@@ -114,7 +117,8 @@ def main(argv=None):
     nn = {"effect": "neural_torque", "axis": "yaw", "hidden": args.hidden}
     models = {"mechanistic": ("mechanistic", build_model()),
               "effect": (f"+ {effect}", parse_effects(effect)) if effect else None,
-              "u": ("+ FNN(u)", build_model([{**nn, "inputs": "u"}])),
+              "u": ("+ FNN(u)" + ("" if args.project == "u" else f" (project {args.project})"),
+                    build_model([{**nn, "inputs": "u", "project": args.project}])),
               "u,x,v": ("+ FNN(u,x,v)", build_model([{**nn, "inputs": "u,x,v"}]))}  # fmt: skip
     runs = pathlib.Path(args.runs)
     base_scores, fnn_u = None, None
@@ -142,7 +146,8 @@ def main(argv=None):
         else:
             label, model = models[row]
         print(f"{label}: {args.sampler} ({args.chains} x ({args.warmup} + {args.draws}))", flush=True)
-        idata, summary = sample_posterior(record, runs / row.replace(",", ""), model=model, train=train,
+        run_dir = runs / (row.replace(",", "") + ("" if row != "u" or args.project == "u" else f"_{args.project}"))
+        idata, summary = sample_posterior(record, run_dir, model=model, train=train,
                                           test=test, error="iid", sampler=args.sampler,
                                           network_posterior=args.nn_posterior,
                                           chains=args.chains, warmup=args.warmup,
@@ -165,7 +170,12 @@ def main(argv=None):
         lines.append(line)
         print(json.dumps({k: v for k, v in line.items() if k not in ("windows", "recovered", "provenance")}),
               flush=True)  # fmt: skip
-    _write_table(lines, pathlib.Path(args.out).with_suffix(".md"))
+    latest = {}  # the table: the newest line of each row on this split, over every run
+    for text in pathlib.Path(args.out).read_text().splitlines() if lines else ():
+        line = json.loads(text)
+        if (line["train"], line["test"]) == (args.train, args.test):
+            latest[line["row"]] = line
+    _write_table(list(latest.values()), pathlib.Path(args.out).with_suffix(".md"))
     return 0
 
 

@@ -151,3 +151,38 @@ def test_last_layer_fixes_the_trained_hidden_layer_and_samples_the_output_weight
         assert not priors.params[n].free and priors.params[n].a == pytest.approx(guesses[0][n])
     assert all(priors.params[n].free for n in outputs)
     assert all(priors.params[n].free for n in ("m", "K_psi_psi"))
+
+
+#: Without the projection the yaw gain and the network's linear part must trade off at
+#: least this strongly (correlation over draws; Laplace at the last layer's MAP).
+TRADE_OFF_CORR = -0.5
+#: A projected network's linear part, relative to the gain's sd: rounding only.
+PROJECTED_LINEAR = 1e-9
+
+
+@pytest.mark.slow
+def test_the_projection_removes_the_gain_network_trade_off(tmp_path):
+    """The same record and hybrid with and without the default projection: without it
+    the yaw gain K_psi_psi and the network's part along u_psi are anti-correlated over the
+    draws and the gain's sd exceeds that of their sum (what the data fix); with it the
+    network's linear part is zero and the gain carries the whole linear torque."""
+    from heli_uq.output.posterior_study import sample_posterior
+
+    rec, _, _ = _truth_record()
+    trade = {}
+    for project in ("none", "u"):
+        hybrid = build_model([{"effect": "neural_torque", "axis": "yaw", "hidden": 2, "project": project}])
+        _, summary = sample_posterior(rec, tmp_path / project, model=hybrid, sampler="laplace",
+                                      error="iid", chains=2, warmup=0, draws=100, progress=False,
+                                      n_starts=1, network_posterior="last-layer")  # fmt: skip
+        saved = json.loads((tmp_path / project / "summary.json").read_text())
+        trade[project] = saved["gain_trade_off"]["yaw"]
+        assert set(trade[project]) == {"u_theta", "u_psi"}
+    free, projected = trade["none"]["u_psi"], trade["u"]["u_psi"]
+    assert free["gain"] == "K_psi_psi"
+    assert free["corr"] < TRADE_OFF_CORR
+    assert free["sd_gain"] > free["sd_total"]
+    for row in trade["u"].values():
+        assert row["sd_linear"] <= PROJECTED_LINEAR * row["sd_gain"]
+        assert np.isnan(row["corr"])  # undefined for a constant
+    assert projected["sd_gain"] < free["sd_gain"]

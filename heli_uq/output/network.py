@@ -26,13 +26,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from heli_uq.model.terms.linear_torque import LINEAR_TORQUE_PARAMETERS
 from heli_uq.model.terms.neural_torque import NeuralTorque
+from heli_uq.model.terms.rigid_body import pitch_inertia, yaw_inertia
 
 __all__ = ["network_points", "network_torques", "network_terms", "is_network_weight",
-           "MAX_POINTS", "WEIGHT_PREFIXES"]  # fmt: skip
+           "gain_trade_off", "MAX_POINTS", "WEIGHT_PREFIXES"]  # fmt: skip
 
 #: Most grid points per network.
 MAX_POINTS = 64
+#: A network's linear part below this fraction of the gain's sd counts as constant
+#: (rounding of a projected network), its correlation as undefined.
+FLAT = 1e-9
 #: Name prefixes of network weights (see :mod:`heli_uq.model.terms.neural_torque`).
 WEIGHT_PREFIXES = ("nn_W_", "nn_b_", "nn_w_")
 
@@ -114,4 +119,66 @@ def network_torques(problem, samples: dict, max_points: int = MAX_POINTS) -> dic
         batched = jax.jit(jax.vmap(lambda p, t=term, q=points: _torque_at(t, p, q)))
         torque = np.asarray(batched({k: jnp.asarray(v) for k, v in flat.items()}))
         out[term.axis] = (torque.reshape(shape + (torque.shape[-1],)), points)
+    return out
+
+
+def gain_trade_off(idata, axis: str = "yaw") -> dict:
+    """How the gains of ``axis`` and the linear part of its network of ``u`` trade off.
+
+    Per draw, ``b = (b_theta, b_psi)`` is the least-squares fit ``b_theta u_theta +
+    b_psi u_psi`` of the stored network torque ``nn_torque_<axis>`` over its voltage
+    pairs, weighted by the samples the training window holds at each: the part of the
+    network the gains can reproduce (the span and weights of the term's default
+    projection, so a projected network gives ``b = 0``).  The axis's
+    torque is ``sum_j s_j K_j u_j + T_nn`` (``s_j`` the gain's sign), so ``s_j K_j`` and
+    ``b_j`` trade off one for one when the network can reproduce ``u_j``.  Both are divided
+    by the draw's inertia ``M`` of the axis (``M11``; ``M22`` at the training window's median
+    pitch): the common inertia scale, which the angles never see, would otherwise correlate
+    every torque with every other.
+
+    Parameters
+    ----------
+    idata : arviz.InferenceData
+        A hybrid posterior with ``nn_torque_<axis>`` on voltage pairs (a network of ``u``)
+        and ``constant_data`` ``u``, ``train_mask``.
+
+    Returns
+    -------
+    dict
+        ``{input: {"gain", "corr", "sd_gain", "sd_linear", "sd_total"}}`` for the inputs
+        ``u_theta``, ``u_psi``: the gain's name, the correlation over draws of ``s K / M``
+        with ``b / M`` (NaN when either is constant), and the sds [1/(V s^2)] of ``s K / M``,
+        ``b / M`` and their sum (what the data determine); empty without such a
+        network.
+    """
+    name = f"nn_torque_{axis}"
+    post = idata.posterior
+    if name not in post or f"nn_point_{axis}_u_psi" not in post.coords or "u" not in idata.constant_data:
+        return {}
+    pairs = np.stack([np.asarray(post[f"nn_point_{axis}_{q}"]) for q in ("u_theta", "u_psi")], axis=1)
+    cd = idata.constant_data
+    held = np.asarray(cd["u"])[np.asarray(cd["train_mask"], dtype=bool)]
+    counts = np.array([np.all(held == pair, axis=1).sum() for pair in pairs], dtype=float)
+    root_w = np.sqrt(counts / counts.sum())
+    basis = pairs
+    torque = np.asarray(post[name]).reshape(-1, len(pairs))
+    b = np.linalg.lstsq(root_w[:, None] * basis, (root_w * torque).T, rcond=None)[0].T  # (S, 2)
+
+    def flat(var):
+        return np.asarray(post[var], dtype=float).reshape(-1)
+
+    body = {n: flat(n) for n in ("J_bc", "m", "r_c", "h", "J_s")}
+    theta_ref = float(np.median(np.asarray(cd["y_obs"])[np.asarray(cd["train_mask"], dtype=bool), 0]))
+    inertia = np.asarray(pitch_inertia(body) if axis == "pitch" else yaw_inertia(body, theta_ref))
+    out = {}
+    for par in LINEAR_TORQUE_PARAMETERS:
+        if par.axis != axis or par.input is None or par.name not in post:
+            continue
+        j, sign = par.input
+        gain, linear = sign * flat(par.name) / inertia, b[:, j] / inertia
+        varies = gain.std() > 0 and linear.std() > FLAT * gain.std()
+        corr = float(np.corrcoef(gain, linear)[0, 1]) if varies else float("nan")
+        out[("u_theta", "u_psi")[j]] = {"gain": par.name, "corr": corr, "sd_gain": float(gain.std()),
+                                        "sd_linear": float(linear.std()),
+                                        "sd_total": float((gain + linear).std())}  # fmt: skip
     return out

@@ -29,7 +29,7 @@ from heli_uq.output.diagnostics import summarize, summary_table
 from heli_uq.output.health import check_health
 from heli_uq.output.inference_data import save_netcdf, to_inference_data
 from heli_uq.output.last_layer import NETWORK_POSTERIORS, last_layer_setup
-from heli_uq.output.network import network_terms
+from heli_uq.output.network import gain_trade_off, network_terms
 from heli_uq.output.plots import plot_bands, save_figure
 from heli_uq.probability.priors import PriorSet
 from heli_uq.probability.problem import make_problem
@@ -187,6 +187,9 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
                       RuntimeWarning, stacklevel=2)  # fmt: skip
     if last_layer is not None:
         summary["last_layer"] = last_layer
+    trade = {t.axis: gain_trade_off(idata, t.axis) for t in network_terms(problem.model) if t.inputs == "u"}
+    if trade:
+        summary["gain_trade_off"] = trade
     summary["health"] = check_health(summary, solver_tol=SOLVER_TOL)
     summary["wall_s"] = time.perf_counter() - t0
     stage("writing posterior.nc, summary.csv, summary.json, bands.png")

@@ -22,6 +22,8 @@ Layer 7, with the rest of :mod:`heli_uq.output` (reads the model and the problem
 
 from __future__ import annotations
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -160,19 +162,22 @@ def gain_trade_off(idata, axis: str = "yaw") -> dict:
     held = np.asarray(cd["u"])[np.asarray(cd["train_mask"], dtype=bool)]
     counts = np.array([np.all(held == pair, axis=1).sum() for pair in pairs], dtype=float)
     root_w = np.sqrt(counts / counts.sum())
-    basis = pairs
     torque = np.asarray(post[name]).reshape(-1, len(pairs))
-    b = np.linalg.lstsq(root_w[:, None] * basis, (root_w * torque).T, rcond=None)[0].T  # (S, 2)
+    b = np.linalg.lstsq(root_w[:, None] * pairs, (root_w * torque).T, rcond=None)[0].T  # (S, 2)
 
-    def flat(var):
-        return np.asarray(post[var], dtype=float).reshape(-1)
+    fixed = json.loads(post.attrs.get("priors", "{}"))
+
+    def flat(var):  # a sampled parameter's draws, or a fixed one's value
+        if var in post:
+            return np.asarray(post[var], dtype=float).reshape(-1)
+        return np.full(len(torque), float(fixed[var]))
 
     body = {n: flat(n) for n in ("J_bc", "m", "r_c", "h", "J_s")}
     theta_ref = float(np.median(np.asarray(cd["y_obs"])[np.asarray(cd["train_mask"], dtype=bool), 0]))
     inertia = np.asarray(pitch_inertia(body) if axis == "pitch" else yaw_inertia(body, theta_ref))
     out = {}
     for par in LINEAR_TORQUE_PARAMETERS:
-        if par.axis != axis or par.input is None or par.name not in post:
+        if par.axis != axis or par.input is None or not (par.name in post or par.name in fixed):
             continue
         j, sign = par.input
         gain, linear = sign * flat(par.name) / inertia, b[:, j] / inertia

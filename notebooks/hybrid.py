@@ -24,7 +24,8 @@
 # synthetic record and trains the network with the physics frozen at the truth and then
 # jointly, so what it should learn is known; `full` (default) starts from the
 # mechanistic MAP on the rig record's 0-91 s and scores the held-out 91-131 s.
-# The Bayesian posterior over the weights is not part of this notebook yet.
+# The second half samples the posterior of the hybrid (a Bayesian last layer) and shows
+# where the data constrain the network and where they do not.
 
 # %%
 from _setup import SIZE, SMALL, rig_or_synthetic  # noqa: I001  (first: it sets up warnings)
@@ -100,5 +101,77 @@ plt.show()
 # Read the test-window V above before trusting a trained network.  On the rig record the
 # held-out window (91-131 s) holds voltage pairs the training window never visits; a
 # network of `u` alone is unconstrained there, so a point estimate extrapolates with no
-# warning.  That is what a posterior over the network's weights (wide bands where the
-# data say nothing) has to show; it is not built yet.
+# warning.  A posterior over the network says how much it knows.
+#
+# ## The posterior of the hybrid
+# `sample_posterior(..., network_posterior="last-layer")` trains the hybrid jointly (as
+# above), fixes the hidden layer at the trained values and samples the output weights
+# with the physics: the torque is then linear in what is sampled, and NUTS converges
+# where it saturates its trees over every weight (`"full"`, see the README).  The small
+# size uses the Laplace approximation at the MAP instead (seconds; its Pareto k says
+# whether the Gaussian can be trusted); the full size runs NUTS, 2 chains x (250 + 250).
+
+# %%
+from heli_uq.output import sample_posterior
+from heli_uq.output.network_plot import plot_network_torque
+
+sampler = "laplace" if SMALL else "nuts"
+idata, summary = sample_posterior(record, "out/hybrid/last_layer", model=build_model([item]), train=train_w,
+                                  test=test_w, error="iid", sampler=sampler, network_posterior="last-layer",
+                                  chains=2, warmup=250, draws=250, progress=False)
+print(f"{sampler}: health {summary['health']['flags'] or 'ok'}; R-hat {summary['rhat_max']:.3f} "
+      f"(network torque {summary['rhat_max_network_torque']:.3f}); wall {summary['wall_s'] / 60:.1f} min")
+for window, w in summary["windows"].items():
+    print(f"{window:5s} RMSE theta/psi {w['rmse']['theta']:.3f} / {w['rmse']['psi']:.3f} rad, "
+          f"90 % coverage {w['coverage90']['theta']:.0%} / {w['coverage90']['psi']:.0%}")
+
+# %% [markdown]
+# The bands of pitch and yaw on both windows (90 % posterior-predictive interval, the
+# measured angles as dots).
+
+# %%
+from IPython.display import Image, display
+
+display(Image("out/hybrid/last_layer/bands.png"))
+
+# %% [markdown]
+# The network's torque at the training window's voltage pairs: the posterior median and
+# its 90 % interval.  At the small size the hidden torque is known; its part orthogonal
+# to the gains (what a projected network can hold) is drawn as crosses.  The angles fix
+# torques only relative to the inertias (every torque and inertia can be scaled by one
+# factor), so there each draw's torque is put at the true yaw inertia first:
+# `T * M22_true / M22_draw`, at the window's median pitch.
+
+# %%
+from heli_uq.model.terms.rigid_body import yaw_inertia
+
+truth = None
+if SMALL:
+    post = idata.posterior
+    body = {n: np.asarray(post[n]) for n in ("J_bc", "m", "r_c", "h", "J_s")}
+    pitch = float(np.median(np.asarray(record.y)[: problem.n_train, 0]))
+    ratio = float(yaw_inertia(RIG_FIT, pitch)) / np.asarray(yaw_inertia(body, pitch))
+    idata.posterior["nn_torque_yaw"] = post["nn_torque_yaw"] * ratio[..., None]
+    pts = np.column_stack([post["nn_point_yaw_u_theta"], post["nn_point_yaw_u_psi"]])
+    hidden_model = build_model(["yaw:quadratic_thrust"])
+    p_true = hidden_model.complete({**RIG_FIT, **HIDDEN})
+    true = np.array([float(hidden_model.effects[0](p_true, jnp.zeros(2), jnp.zeros(2), jnp.asarray(q))[1])
+                     for q in pts])
+    held = np.asarray(record.u)[: problem.n_train]
+    weight = np.sqrt([np.all(held == q, axis=1).sum() for q in pts])
+    beta = np.linalg.lstsq(pts * weight[:, None], true * weight, rcond=None)[0]
+    truth = true - pts @ beta
+fig = plot_network_torque(idata, "yaw", truth=truth)
+display(fig)
+
+# %% [markdown]
+# **Do the gains and the network trade off?**  Per draw, the part of the network torque
+# along the voltages (weighted least squares over the voltage pairs) is set against the
+# gains of the axis, both divided by the yaw inertia.  With the default projection that
+# part is zero and the gains own the whole linear torque; with `project: "none"` the two
+# are anti-correlated (`tests/test_hybrid_posterior.py`, and the README's table).
+
+# %%
+for voltage, row in summary["gain_trade_off"]["yaw"].items():
+    print(f"{row['gain']:12s} vs network along {voltage}: corr {row['corr']:.2f}, "
+          f"sd gain/M22 {row['sd_gain']:.3g}, network part {row['sd_linear']:.2g} 1/(V s^2)")

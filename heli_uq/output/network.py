@@ -30,7 +30,7 @@ import numpy as np
 
 from heli_uq.model.terms.linear_torque import LINEAR_TORQUE_PARAMETERS
 from heli_uq.model.terms.neural_torque import NeuralTorque
-from heli_uq.model.terms.rigid_body import pitch_inertia, yaw_inertia
+from heli_uq.model.terms.rigid_body import MECHANICS_PARAMETERS, pitch_inertia, yaw_inertia
 
 __all__ = ["network_points", "network_torques", "network_terms", "is_network_weight",
            "gain_trade_off", "MAX_POINTS", "WEIGHT_PREFIXES"]  # fmt: skip
@@ -172,7 +172,7 @@ def gain_trade_off(idata, axis: str = "yaw") -> dict:
             return np.asarray(post[var], dtype=float).reshape(-1)
         return np.full(len(torque), float(fixed[var]))
 
-    body = {n: flat(n) for n in ("J_bc", "m", "r_c", "h", "J_s")}
+    body = {par.name: flat(par.name) for par in MECHANICS_PARAMETERS if par.name in post or par.name in fixed}
     theta_ref = float(np.median(np.asarray(cd["y_obs"])[np.asarray(cd["train_mask"], dtype=bool), 0]))
     inertia = np.asarray(pitch_inertia(body) if axis == "pitch" else yaw_inertia(body, theta_ref))
     out = {}

@@ -106,6 +106,7 @@ def main(argv=None):
     from heli_uq.discovery.score import input_blocks
     from heli_uq.model.spec import build_model, parse_effects
     from heli_uq.output import sample_posterior
+    from heli_uq.output.network import network_pairs
     from heli_uq.output.network_plot import plot_network_torque
 
     record = load_data(args.data)
@@ -132,12 +133,8 @@ def main(argv=None):
                 continue
             torque = np.asarray(fnn_u.posterior["nn_torque_yaw"])
             torque = torque.reshape(-1, torque.shape[-1])
-            dim = "nn_point_yaw"
-            points = {k: np.asarray(fnn_u.posterior[f"{dim}_{k}"]) for k in ("u_theta", "u_psi")}
-            u_train = np.asarray(fnn_u.constant_data["u"])[np.asarray(fnn_u.constant_data["train_mask"])]
-            pairs, counts = np.unique(u_train, axis=0, return_counts=True)
-            lookup = {tuple(p): c for p, c in zip(pairs, counts)}
-            weights = np.array([lookup[(a, b)] for a, b in zip(points["u_theta"], points["u_psi"])], float)
+            pairs, weights = network_pairs(fnn_u, "yaw")
+            points = {"u_theta": pairs[:, 0], "u_psi": pairs[:, 1]}
             recovered = recover_equation(torque, points, weights, project="u")
             label, model = "+ recovered equation", equation_model(models["u"][1], "yaw", recovered["selected"])
         elif models.get(row) is None:

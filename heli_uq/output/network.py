@@ -31,9 +31,10 @@ import numpy as np
 from heli_uq.model.terms.linear_torque import LINEAR_TORQUE_PARAMETERS
 from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.model.terms.rigid_body import MECHANICS_PARAMETERS, pitch_inertia, yaw_inertia
+from heli_uq.probability.priors import fixed_values
 
 __all__ = ["network_points", "network_torques", "network_terms", "is_network_weight",
-           "gain_trade_off", "MAX_POINTS", "WEIGHT_PREFIXES"]  # fmt: skip
+           "gain_trade_off", "network_pairs", "MAX_POINTS", "WEIGHT_PREFIXES"]  # fmt: skip
 
 #: Most grid points per network.
 MAX_POINTS = 64
@@ -124,6 +125,15 @@ def network_torques(problem, samples: dict, max_points: int = MAX_POINTS) -> dic
     return out
 
 
+def network_pairs(idata, axis: str) -> tuple[np.ndarray, np.ndarray]:
+    """The voltage pairs [V] of a stored network-of-``u`` torque, shape (k, 2), and the
+    samples the training window holds at each, shape (k,) (the projection's weights)."""
+    post, cd = idata.posterior, idata.constant_data
+    pairs = np.stack([np.asarray(post[f"nn_point_{axis}_{q}"]) for q in ("u_theta", "u_psi")], axis=1)
+    held = np.asarray(cd["u"])[np.asarray(cd["train_mask"], dtype=bool)]
+    return pairs, np.array([np.all(held == pair, axis=1).sum() for pair in pairs], dtype=float)
+
+
 def gain_trade_off(idata, axis: str = "yaw") -> dict:
     """How the gains of ``axis`` and the linear part of its network of ``u`` trade off.
 
@@ -157,22 +167,19 @@ def gain_trade_off(idata, axis: str = "yaw") -> dict:
     post = idata.posterior
     if name not in post or f"nn_point_{axis}_u_psi" not in post.coords or "u" not in idata.constant_data:
         return {}
-    pairs = np.stack([np.asarray(post[f"nn_point_{axis}_{q}"]) for q in ("u_theta", "u_psi")], axis=1)
-    cd = idata.constant_data
-    held = np.asarray(cd["u"])[np.asarray(cd["train_mask"], dtype=bool)]
-    counts = np.array([np.all(held == pair, axis=1).sum() for pair in pairs], dtype=float)
+    pairs, counts = network_pairs(idata, axis)
     root_w = np.sqrt(counts / counts.sum())
     torque = np.asarray(post[name]).reshape(-1, len(pairs))
     b = np.linalg.lstsq(root_w[:, None] * pairs, (root_w * torque).T, rcond=None)[0].T  # (S, 2)
-
-    fixed = json.loads(post.attrs.get("priors", "{}"))
+    fixed = fixed_values(json.loads(post.attrs.get("priors", "{}")))
 
     def flat(var):  # a sampled parameter's draws, or a fixed one's value
         if var in post:
             return np.asarray(post[var], dtype=float).reshape(-1)
-        return np.full(len(torque), float(fixed[var]))
+        return np.full(len(torque), fixed[var])
 
     body = {par.name: flat(par.name) for par in MECHANICS_PARAMETERS if par.name in post or par.name in fixed}
+    cd = idata.constant_data
     theta_ref = float(np.median(np.asarray(cd["y_obs"])[np.asarray(cd["train_mask"], dtype=bool), 0]))
     inertia = np.asarray(pitch_inertia(body) if axis == "pitch" else yaw_inertia(body, theta_ref))
     out = {}

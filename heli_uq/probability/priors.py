@@ -37,7 +37,7 @@ from heli_uq.model.parameter import check_prior
 from heli_uq.model.prior import Prior, parse_prior_text, prior_from_json
 from heli_uq.model.tables import X0_NAMES
 
-__all__ = ["PriorSet", "X0_ANGLE_SD", "X0_RATE_SD", "SIGMA_PRIOR", "TAU_PRIOR", "OUTPUTS",
+__all__ = ["PriorSet", "fixed_values", "X0_ANGLE_SD", "X0_RATE_SD", "SIGMA_PRIOR", "TAU_PRIOR", "OUTPUTS",
            "parse_prior_option", "load_priors_json"]  # fmt: skip
 
 X0_ANGLE_SD = 0.05  # rad
@@ -130,6 +130,13 @@ def parse_prior_option(text: str, *, option: str = "prior") -> tuple[str, Prior]
     if not sep or not name.strip():
         raise ParameterError(f"{option} {text!r}: expected NAME=KIND:A:B or NAME=VALUE")
     return name.strip(), parse_prior_text(rest, f"{option} {name.strip()}")
+
+
+def fixed_values(specs: Mapping) -> dict[str, float]:
+    """``{name: value}`` of the fixed entries of :meth:`PriorSet.to_json` output (e.g. the
+    ``priors`` attribute of a saved posterior); sampled and ``null`` entries are left out."""
+    return {name: prior.a for name, spec in specs.items() if spec is not None
+            for prior in (prior_from_json(spec, f"priors: {name}"),) if prior.kind == "fixed"}  # fmt: skip
 
 
 def load_priors_json(path: str | os.PathLike) -> dict:

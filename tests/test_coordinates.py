@@ -62,6 +62,23 @@ def test_round_trip(coords):
         assert abs(float(back[k]) - v) <= 1e-12 * max(1.0, abs(v)), k
 
 
+def test_a_body_without_its_own_inertia_has_finite_coordinates():
+    """A fit can push J_bc to 0 (body fraction 1, where the sigmoid of the coordinate
+    rounds to 1): the coordinates stay finite and map back to J_bc ~ 0 and the rest."""
+    from heli_uq.probability.coordinates import BODY_FRACTION_EPS
+
+    coords = Coordinates(BASE, _priors(BASE))
+    saturated = jnp.asarray(coords.from_physical(TABLE1)).at[2].set(60.0)  # sigmoid(60) == 1.0
+    for p in ({**TABLE1, "J_bc": 0.0}, coords.to_physical(saturated)):
+        z = coords.from_physical(p)
+        assert np.all(np.isfinite(z))
+        back = coords.to_physical(jnp.asarray(z))
+        m11 = float(back["J_bc"] + back["J_s"] + back["m"] * (back["r_c"] ** 2 + back["h"] ** 2))
+        assert float(back["J_bc"]) <= 2 * BODY_FRACTION_EPS * m11
+        for k in ("r_c", "m", "h", "J_s", "K_psi_psi"):
+            assert abs(float(back[k]) - float(p[k])) <= 1e-9 * max(1e-3, abs(float(p[k]))), k
+
+
 def _angles(coords, z, u):
     return simulate(coords.to_physical(z), jnp.array([-0.5, 0.0, 0.3, -0.2]), u, 0.01,
                     model=coords.model, substeps=2)[:, :2]  # fmt: skip

@@ -148,6 +148,31 @@ def test_discrimination_is_zero_between_identical_models_and_grows_with_their_di
     assert small.value(u) > 1.0
 
 
+@pytest.mark.slow
+def test_a_saved_posterior_becomes_the_design_prior_with_its_fixed_values(tmp_path):
+    """The design prior from a ``posterior.nc``: its free parameters and their draws, and
+    a parameter the run fixed (here K_theta_psi at half the rig fit) at that fixed value,
+    not at the model's start value."""
+    from heli_uq.model import RIG_FIT, RIG_FIT_X0, HeliModel
+    from heli_uq.model.prior import Prior
+    from heli_uq.output.posterior_study import sample_posterior
+    from heli_uq.probability import PriorSet
+    from heli_uq.simulation import synthetic_experiment
+
+    model = HeliModel()
+    rec = synthetic_experiment(RIG_FIT, RIG_FIT_X0, duration=10.0, inputs="rig_steps", seed=2,
+                               noise_std=(0.003, 0.008))  # fmt: skip
+    fixed = 0.5 * RIG_FIT["K_theta_psi"]
+    priors = PriorSet.default(model).updated(model, {"K_theta_psi": Prior("fixed", fixed)}, where="test")
+    sample_posterior(rec, tmp_path, model=model, priors=priors, sampler="laplace", error="iid",
+                     chains=1, warmup=0, draws=40, progress=False, n_starts=1)  # fmt: skip
+    prior = DesignPrior.from_posterior(tmp_path / "posterior.nc", draws=3)
+    assert prior.pv.base["K_theta_psi"] == fixed != model.start_values()["K_theta_psi"]
+    assert "K_theta_psi" not in prior.pv.free and "K_psi_psi" in prior.pv.free
+    assert prior.draws.shape == (3, len(prior.pv.free))
+    assert prior.chol.shape == (len(prior.pv.free),) * 2
+
+
 def test_cli_design_rejects_bad_input_in_one_line(tmp_path, capsys):
     cases = [(["--duration", "2"], "--duration: 2 s cannot be split"),
              (["--u-psi", "1.0:0.5"], "--u-psi range"),

@@ -1,6 +1,8 @@
 """The parts of the discovery workflow, each against an independent form: blocked scores,
 the implied torque, effect features, the pysindy ranking and the task executor."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.stats import norm
@@ -29,6 +31,10 @@ IMPLIED_RTOL = 0.05
 IMPLIED_PARAM_FACTOR = 2.0
 #: Longest wait [s] for the error about an unreachable scheduler (the connect timeout is 10 s).
 UNREACHABLE_WAIT_S = 30.0
+#: A candidate refitted from "effect off" ends at most this far [nats] above the nested
+#: model's MAP: the new parameter's own prior term (measured 1-6 nats for the effects of
+#: the table on a 14 s window).
+OFF_PRIOR_NATS = 8.0
 
 
 def test_probe_values_of_scaled_effects_follow_the_fits_axis_inertia():
@@ -80,6 +86,50 @@ def test_warm_starts_probe_next_to_the_current_fit_and_next_to_the_rig_fit():
     at_rig = {**RIG_FIT, "theta_0": -0.3}
     assert warm_starts(at_rig, effects, {"F_c_pitch": -1.0}) == (
         {**at_rig, **probe_values(model, at_rig, ["F_c_pitch"])},)
+
+
+def test_off_start_switches_the_new_effects_off_next_to_the_current_fit():
+    from heli_uq.discovery.candidates import OFF_FRACTION, off_start, probe_values
+
+    current = {**RIG_FIT, "theta_0": -0.3}
+    effects = ["yaw:torsional_spring", "pitch:torque_offset"]
+    model = build_model(effects)
+    off = off_start(current, effects)
+    probe = probe_values(model, current, ["k_yaw"])
+    # k >= 0 is off at its bound 0: a small fraction of its probe; psi_0 and T_0 are real
+    assert off == {**current, "k_yaw": OFF_FRACTION * probe["k_yaw"], "psi_0_yaw": 0.0, "T_0_pitch": 0.0}
+
+
+@pytest.fixture(scope="module")
+def trap_record():
+    """A 20 s rig-like record of the base model, and the base model's MAP on 0-14 s."""
+    from heli_uq.discovery.candidates import FitTask, fitted_predictive
+
+    rec = synthetic_experiment(RIG_FIT, RIG_FIT_X0, duration=20.0, inputs="rig_steps",
+                               noise_std=(0.003, 0.008), seed=3, model=build_model([]))  # fmt: skip
+    base = fitted_predictive(FitTask(rec, (0.0, 14.0), (14.0, 20.0), (), (RIG_FIT,), 0, 1, 8))
+    return rec, base
+
+
+def test_a_nested_candidate_in_a_poor_basin_is_refitted_from_effect_off(trap_record, monkeypatch):
+    """A pitch dead band started at 5 V (beyond every pitch voltage: no pitch thrust) ends
+    ~11 nats below the base model it nests; with no slack, the fallback refits it from
+    "dead band off" and keeps that MAP, which is the base's up to the new prior term."""
+    import heli_uq.discovery.candidates as candidates
+
+    rec, base = trap_record
+    effects = ("pitch:deadband",)
+    trapped = candidates.FitTask(rec, (0.0, 14.0), (14.0, 20.0), effects,
+                                 ({**base.params, "delta_pitch": 5.0},), 0, 1, 8)  # fmt: skip
+    alone = candidates.fitted_predictive(trapped)
+    assert not alone.from_off and alone.start.map_value > base.start.map_value + OFF_PRIOR_NATS
+    monkeypatch.setattr(candidates, "NESTED_SLACK_NATS", 0.0)
+    guarded = dataclasses.replace(trapped, off=candidates.off_start(base.params, list(effects)),
+                                  floor=base.start.map_value)  # fmt: skip
+    fitted = candidates.fitted_predictive(guarded)
+    assert fitted.from_off and fitted.start.map_value < alone.start.map_value
+    assert fitted.start.map_value <= base.start.map_value + OFF_PRIOR_NATS
+    assert candidates.score_fitted(fitted, guarded)["off_start"] is True
 
 
 def test_input_blocks_follow_voltage_changes_and_merge_short_runs():

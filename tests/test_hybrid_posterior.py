@@ -153,6 +153,33 @@ def test_last_layer_fixes_the_trained_hidden_layer_and_samples_the_output_weight
     assert all(priors.params[n].free for n in ("m", "K_psi_psi"))
 
 
+#: The base model's V [rad^2] on the record from a good MAP: the noise floor is 7.3e-5, the
+#: unmodelled quadratic thrust adds ~1e-4; the wrong basin the fix removes had 3.1.
+BASE_V_MAX = 1e-3
+
+
+@pytest.mark.slow
+def test_last_layer_with_a_fixed_mass_starts_the_base_fit_from_the_rig_fit(tmp_path):
+    """With m fixed (plain log coordinates), two cold starts of the base model's MAP both
+    ended at V = 3.1 rad^2 on this record and the Laplace covariance came out non-finite.
+    Started from the rig fit too, the base fit is good and the last-layer posterior finite."""
+    from heli_uq.model.prior import Prior
+    from heli_uq.output.posterior_study import sample_posterior
+    from heli_uq.probability import PriorSet
+
+    rec, _, values = _truth_record()
+    hybrid = build_model([{"effect": "neural_torque", "axis": "yaw", "hidden": 2}])
+    priors = PriorSet.default(hybrid).updated(hybrid, {"m": Prior("fixed", values["m"])}, where="test")
+    _, summary = sample_posterior(rec, tmp_path, model=hybrid, priors=priors, sampler="laplace",
+                                  error="iid", chains=2, warmup=0, draws=50, progress=False,
+                                  n_starts=1, network_posterior="last-layer")  # fmt: skip
+    assert summary["last_layer"]["v_base"] < BASE_V_MAX
+    assert summary["last_layer"]["v_trained"] <= summary["last_layer"]["v_base"]
+    post = az.from_netcdf(tmp_path / "posterior.nc").posterior
+    assert "m" not in post  # fixed: not a sampled variable
+    assert np.all(np.isfinite(post["K_psi_psi"].values)) and float(post["K_psi_psi"].std()) > 0
+
+
 #: Without the projection the yaw gain and the network's linear part must trade off at
 #: least this strongly (correlation over draws; Laplace at the last layer's MAP).
 TRADE_OFF_CORR = -0.5

@@ -29,7 +29,7 @@ from heli_uq.errors import DataFormatError, ParameterError
 from heli_uq.identifiability.parameter_vector import ParameterVector
 from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.tables import RIG_FIT, RIG_FIT_X0
-from heli_uq.probability.priors import OUTPUTS, PriorSet
+from heli_uq.probability.priors import OUTPUTS, PriorSet, fixed_values
 from heli_uq.simulation.physical import PITCH_LIMIT
 from heli_uq.simulation.solver import default_substeps
 
@@ -121,9 +121,8 @@ class DesignPrior:
             raise DataFormatError(f"{path}: the posterior names no free model parameters")
         values = {n: np.asarray(post[n]).reshape(-1) for n in free}
         base = model.start_values()
-        fixed = json.loads(post.attrs.get("priors", "{}"))
-        base.update({n: float(s["fixed"]) for n, s in fixed.items()
-                     if isinstance(s, dict) and "fixed" in s and n in base})  # fmt: skip
+        fixed = fixed_values(json.loads(post.attrs.get("priors", "{}")))
+        base.update({n: v for n, v in fixed.items() if n in base})
         base.update({n: float(np.mean(v)) for n, v in values.items()})
         pv = _vector(model, free, base, dt)
         w = np.column_stack([np.log(values[n]) if pv.is_log(n) else values[n] for n in pv.free])

@@ -3,9 +3,13 @@
 :func:`fit_and_score` fits a model (the base plus effects) on the fitting window: a
 multi-start MAP (:func:`heli_uq.inference.prepare_start`) started first from the warm
 guesses (the current model's MAP with each new effect parameter at its implied value from
-the sparse regression, and at its probe value), with iid errors.  It then draws the
-Laplace approximation at the MAP, simulates every draw once over fitting and held-out
-window, and returns the gap metrics of both windows and the held-out block scores
+the sparse regression, and at its probe value), with iid errors.  A candidate nests the
+current model, so its MAP should be at least as good; if its ``-log p`` ends more than
+:data:`NESTED_SLACK_NATS` above the current model's (a start in a poor basin), it is refitted
+from the current MAP with the new effect switched off (:func:`off_start`), which starts
+from the current model's fit and can only improve on it, and the better MAP is kept.  It
+then draws the Laplace approximation at the MAP, simulates every draw once over fitting
+and held-out window, and returns the gap metrics of both windows and the held-out block scores
 (:mod:`heli_uq.discovery.score`).  The result is a JSON-able dict, so it can be stored
 and reused when a run is repeated with the same ``--out``.
 """
@@ -19,13 +23,24 @@ import numpy as np
 
 from heli_uq.data import Experiment
 from heli_uq.discovery.score import MIN_BLOCKS, block_scores, gap_metrics, input_blocks
+from heli_uq.errors import ParameterError
 from heli_uq.inference import prepare_start
 from heli_uq.model import AXES, RIG_FIT, X0_NAMES, build_model
 from heli_uq.output.inference_data import simulate_draws
 from heli_uq.probability import make_problem
 
 __all__ = ["FitTask", "fit_and_score", "score_fitted", "Fitted", "fitted_predictive", "probe_values",
-           "warm_starts"]
+           "warm_starts", "off_start", "NESTED_SLACK_NATS", "OFF_FRACTION"]
+
+#: A nested candidate's MAP may end this far [nats of -log posterior] above the current
+#: model's before it is refitted from "effect off".  The slack covers the new parameters'
+#: own prior terms (in log coordinates a parameter the data do not want costs a few nats);
+#: the poor basins this guards against are thousands of nats worse.
+NESTED_SLACK_NATS = 25.0
+#: "Off" of a parameter whose off value (its default) is a bound of its support, e.g.
+#: ``F_c = 0`` of a log coordinate: this fraction of its probe value, close enough to off
+#: that the start reproduces the current fit, inside the support so the fit can grow it.
+OFF_FRACTION = 1e-3
 
 
 def probe_values(model, current: dict, names) -> dict:
@@ -92,6 +107,22 @@ def warm_starts(current_map: dict, effects: list[str], implied: dict) -> tuple[d
     return tuple(out)
 
 
+def off_start(current_map: dict, effects: list[str]) -> dict:
+    """The candidate model ``effects`` at the current fit ``current_map`` with its new
+    parameters switched off: each at its default (the value that switches the effect
+    off) if that lies inside its support, else at :data:`OFF_FRACTION` of its probe
+    value (:func:`probe_values`)."""
+    model = build_model(effects)
+    new = [p for p in model.parameters() if p.name not in current_map]
+    probe = probe_values(model, current_map, [p.name for p in new])
+    out = dict(current_map)
+    for par in new:
+        lo, hi = par.interval
+        out[par.name] = (par.default if lo < par.default < hi or par.support == "real"
+                         else OFF_FRACTION * probe[par.name])  # fmt: skip
+    return out
+
+
 @dataclasses.dataclass(frozen=True)
 class FitTask:
     """What one candidate fit needs (picklable; sent to a worker).
@@ -112,6 +143,9 @@ class FitTask:
         Laplace draws simulated for the predictive.
     newton_steps : int
         Newton steps of the MAP polish (of the best start only).
+    off, floor : dict or None, float or None
+        The nested fallback (module docstring): the start with the new effects switched
+        off (:func:`off_start`) and the current model's ``-log p`` at its MAP.
     """
 
     record: Experiment
@@ -123,6 +157,8 @@ class FitTask:
     n_starts: int = 3
     draws: int = 100
     newton_steps: int = 6
+    off: dict | None = None
+    floor: float | None = None
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -135,6 +171,8 @@ class Fitted:
     y_pred: np.ndarray
     sigma: np.ndarray
     seconds: float
+    #: True if the MAP is the refit from "effect off" (module docstring).
+    from_off: bool = False
 
 
 def fitted_predictive(task: FitTask) -> Fitted:
@@ -142,14 +180,43 @@ def fitted_predictive(task: FitTask) -> Fitted:
     t0 = time.perf_counter()
     model = build_model(list(task.effects))
     problem = make_problem(task.record, task.fit_window, task.score_window, model=model, error="iid")
-    start = prepare_start(problem, n_starts=task.n_starts, seed=task.seed, guesses=task.guesses,
-                          newton_steps=task.newton_steps, polish_best=1)
+    start, from_off = _nested_map(problem, task)
     params, x0 = start.map_point()
     params.update(zip(X0_NAMES, map(float, x0)))
     sites = start.laplace_draws(task.draws, seed=task.seed)
     _, y_sim, y_pred = simulate_draws(start.problem, {k: np.asarray(v)[None] for k, v in sites.items()},
                                       np.arange(task.draws), seed=task.seed, want_ll=False)  # fmt: skip
-    return Fitted(start, params, y_sim, y_pred, np.asarray(sites["sigma"]), time.perf_counter() - t0)
+    return Fitted(start, params, y_sim, y_pred, np.asarray(sites["sigma"]), time.perf_counter() - t0,
+                  from_off)  # fmt: skip
+
+
+def _nested_map(problem, task: FitTask):
+    """``(start, from_off)``: the MAP of ``task``'s starts, or of the nested fallback if
+    that is better (module docstring)."""
+
+    def fit(guesses, n_starts):
+        return prepare_start(problem, n_starts=n_starts, seed=task.seed, guesses=guesses,
+                             newton_steps=task.newton_steps, polish_best=1)  # fmt: skip
+
+    try:
+        start, error = fit(task.guesses, task.n_starts), None
+    except ParameterError as exc:  # no start finite: the fallback may still be
+        start, error = None, exc
+    if task.off is None or task.floor is None:
+        if error is not None:
+            raise error
+        return start, False
+    if start is not None and start.map_value <= task.floor + NESTED_SLACK_NATS:
+        return start, False
+    try:
+        again = fit((task.off,), 1)
+    except ParameterError:
+        if error is not None:
+            raise error from None
+        return start, False
+    if start is None or again.map_value < start.map_value:
+        return again, True
+    return start, False
 
 
 def fit_and_score(task: FitTask) -> dict:
@@ -174,7 +241,7 @@ def score_fitted(fitted: Fitted, task: FitTask) -> dict:
     a, b = windows["train"]
     out = {"effects": list(task.effects), "map": fitted.params,
            "map_value": fitted.start.map_value, "map_decrement": fitted.start.map_decrement,
-           "substeps": problem.substeps,
+           "substeps": problem.substeps, "off_start": fitted.from_off,
            "fit": gap_metrics(fitted.y_sim[:, a:b], fitted.y_pred[:, a:b], problem.y[a:b])}  # fmt: skip
     c, d = windows["test"]
     out["score"] = gap_metrics(fitted.y_sim[:, c:d], fitted.y_pred[:, c:d], problem.y[c:d])

@@ -50,7 +50,14 @@ import time
 import numpy as np
 
 from heli_uq.data import Experiment
-from heli_uq.discovery.candidates import FitTask, fit_and_score, fitted_predictive, score_fitted, warm_starts
+from heli_uq.discovery.candidates import (
+    FitTask,
+    fit_and_score,
+    fitted_predictive,
+    off_start,
+    score_fitted,
+    warm_starts,
+)
 from heli_uq.discovery.decide import choose, pair_members, rank
 from heli_uq.discovery.implied import base_features, effect_features, implied_torque
 from heli_uq.discovery.locate import locate
@@ -163,7 +170,8 @@ def _signature(record: Experiment, task: FitTask) -> str:
     for a in (record.t, record.u, record.y):
         h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
     h.update(json.dumps([task.fit_window, task.score_window, task.effects, task.seed,
-                         task.n_starts, task.draws, task.newton_steps, task.guesses],
+                         task.n_starts, task.draws, task.newton_steps, task.guesses, task.off,
+                         task.floor],
                         default=float).encode())  # fmt: skip
     return h.hexdigest()
 
@@ -266,10 +274,12 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     out.mkdir(parents=True, exist_ok=True)
     store = _Store(out)
 
-    def task(effects, guesses=(), cold=cost.cold_starts):
+    def task(effects, guesses=(), cold=cost.cold_starts, nests=None):
+        """``nests``: the current fit ``(result, map)`` the candidate nests (its fallback)."""
         starts = len(guesses) + cold
+        off, floor = (None, None) if nests is None else (off_start(nests[1], effects), nests[0]["map_value"])
         return FitTask(record, fit_w, score_w, tuple(effects), tuple(guesses), seed, starts,
-                       cost.draws, cost.newton_steps)  # fmt: skip
+                       cost.draws, cost.newton_steps, off, floor)  # fmt: skip
 
     def elapsed():
         return f"[{time.perf_counter() - t_start:5.0f} s]"
@@ -309,7 +319,8 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         singles = {}
         for e in _candidate_effects(current, vocabulary):
             singles[_key(current + [e])] = task(current + [e], warm_starts(current_map, current + [e],
-                                                                        implied.get(e, {})))  # fmt: skip
+                                                                        implied.get(e, {})),
+                                                nests=(current_res, current_map))  # fmt: skip
         results = _run_round(singles, store, record, scheduler, say)
         if not restarted:
             restarted = True
@@ -320,8 +331,8 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
                 try:
                     again_fit = fitted_predictive(again_task)
                     again = score_fitted(again_fit, again_task)
-                except ParameterError as exc:  # keep the current fit; never abort the run
-                    say(f"  the refit failed ({exc}); keeping the current MAP")
+                except Exception as exc:  # noqa: BLE001 - like a failed candidate: keep the current fit
+                    say(f"  the refit failed ({type(exc).__name__}: {exc}); keeping the current MAP")
                     again = {"map_value": np.inf}
                 if again["map_value"] < current_res["map_value"] - RESTART_NATS:
                     say(f"the current model's MAP improved by "
@@ -342,7 +353,8 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
                 effects = current + [ea, eb]
                 guess = {**results[a]["map"], **{k: v for k, v in results[b]["map"].items()
                                                  if k not in results[a]["map"]}}  # fmt: skip
-                pairs[_key(effects)] = task(effects, (guess,) + warm_starts(current_map, effects, {}))
+                pairs[_key(effects)] = task(effects, (guess,) + warm_starts(current_map, effects, {}),
+                                            nests=(current_res, current_map))  # fmt: skip
             pair_results = _run_round(pairs, store, record, scheduler, say)
             results.update(pair_results)
             rows = rank(results, current_res, n_scored)

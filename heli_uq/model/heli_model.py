@@ -156,27 +156,43 @@ class HeliModel(eqx.Module):
             u = term(p, u)
         return u
 
-    def force(self, p, x, v, u):
+    @property
+    def holds_torque(self) -> bool:
+        """True if some torque depends on the voltages only (``input_only``): the simulator
+        then evaluates those once per sample (:meth:`held_torque`), not at every stage."""
+        return any(t.input_only for t in self.torques)
+
+    def held_torque(self, p, u):
+        """Sum of the ``input_only`` torques at voltages ``u`` (2,) [V] before the input
+        maps, shape (2,) [N m]; ``p`` with the derived values (:meth:`prepare`)."""
+        terms = tuple(t for t in self.torques if t.input_only)
+        total = _sum_forces(terms, p, (0.0, 0.0), (0.0, 0.0), self.input_voltages(p, u))
+        return jnp.stack([jnp.asarray(f, dtype=jnp.float64) for f in total])
+
+    def force(self, p, x, v, u, held=None):
         """Generalized force ``(T_theta, T_psi)`` [N m] of all torque terms at mapped ``u``,
-        a pair of scalars (literal ``0.0`` components of a term are skipped)."""
-        total = [0.0, 0.0]
-        for term in self.torques:
-            for i, part in enumerate(term(p, x, v, u)):
-                if not (isinstance(part, float) and part == 0.0):
-                    total[i] = part if isinstance(total[i], float) else total[i] + part
-        return tuple(total)
+        a pair of scalars (literal ``0.0`` components of a term are skipped).
+
+        ``held`` (2,) [N m]: the ``input_only`` torques already summed at these voltages
+        (:meth:`held_torque`); those terms are then not evaluated again.
+        """
+        if held is None:
+            return _sum_forces(self.torques, p, x, v, u)
+        total = _sum_forces(tuple(t for t in self.torques if not t.input_only), p, x, v, u)
+        return (total[0] + held[0], total[1] + held[1])
 
     def force_vector(self, p, x, v, u):
         """:meth:`force` as an array of shape (2,) [N m]."""
         return jnp.stack([jnp.asarray(f, dtype=jnp.float64) for f in self.force(p, x, v, u)])
 
-    def acceleration(self, prepared, x, v, u, sc=None):
+    def acceleration(self, prepared, x, v, u, sc=None, held=None):
         """Generalized accelerations (2,) [rad/s^2]; ``u`` (2,) [V] before the input maps.
 
-        ``sc = (sin theta, cos theta)`` may be passed by a caller that already has them.
+        ``sc = (sin theta, cos theta)`` may be passed by a caller that already has them;
+        ``held``: the ``input_only`` torques at ``u`` (:meth:`held_torque`), likewise.
         """
         coeffs, p = prepared
-        force = self.force(p, x, v, self.input_voltages(p, u))
+        force = self.force(p, x, v, self.input_voltages(p, u), held)
         return self.mechanics.acceleration(coeffs, x, v, force, sc)
 
     def __call__(self, t, y, args):
@@ -216,6 +232,17 @@ class HeliModel(eqx.Module):
     def label(self) -> str:
         """Short text, e.g. ``"mechanistic + coulomb_friction(yaw)"``."""
         return " + ".join(["mechanistic"] + [t.label for t in self.effects])
+
+
+def _sum_forces(terms, p, x, v, u):
+    """``(T_theta, T_psi)`` summed over ``terms`` (literal ``0.0`` parts are skipped, so
+    no operation is traced for them)."""
+    total = [0.0, 0.0]
+    for term in terms:
+        for i, part in enumerate(term(p, x, v, u)):
+            if not (isinstance(part, float) and part == 0.0):
+                total[i] = part if isinstance(total[i], float) else total[i] + part
+    return tuple(total)
 
 
 def momentum_vector_field(t, z, args):

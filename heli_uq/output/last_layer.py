@@ -13,7 +13,12 @@ the uncertainty of the torque's *amplitudes* over those features, not of their s
 
 :func:`last_layer_setup`:
 
-1. the base model (the hybrid without its networks) gets its MAP on the training window;
+1. the base model (the hybrid without its networks) gets its MAP on the training window,
+   started from the caller's guesses, the shipped fit of the rig record
+   (:data:`heli_uq.model.RIG_FIT`) and :data:`BASE_COLD_STARTS` more starts.  Two cold
+   starts alone are not enough: with ``m`` fixed (plain log coordinates instead of the
+   inertia-ratio ones) both ended in a basin with V = 3.1 rad^2 on a 20 s synthetic record
+   (3e-4 from the rig fit), and training and Laplace from there failed;
 2. :func:`heli_uq.inference.train` fits the hybrid jointly from there (Adam, then L-BFGS
    on V, as in the paper);
 3. the hidden weights and biases (``nn_W_*``, ``nn_b_*``) are fixed at the trained values
@@ -26,6 +31,7 @@ Layer 7 (uses the inference layer and the model; called by
 from __future__ import annotations
 
 from heli_uq.inference import prepare_start, train
+from heli_uq.model import RIG_FIT
 from heli_uq.model.prior import Prior
 from heli_uq.model.spec import with_effects
 from heli_uq.output.network import network_terms
@@ -35,11 +41,17 @@ __all__ = ["last_layer_setup", "NETWORK_POSTERIORS"]
 
 #: What ``sample_posterior(network_posterior=...)`` samples of a network.
 NETWORK_POSTERIORS = ("full", "last-layer")
+#: Starts of the base model's MAP beyond the guesses (module docstring).
+BASE_COLD_STARTS = 2
 
 
 def last_layer_setup(record, train_window, test_window, *, model, priors: PriorSet, error: str,
-                     substeps=None, seed: int = 0, log=None) -> tuple[PriorSet, list[dict], dict]:  # fmt: skip
+                     substeps=None, seed: int = 0, guesses=(),
+                     log=None) -> tuple[PriorSet, list[dict], dict]:  # fmt: skip
     """Priors with the networks' hidden layers fixed at trained values (module docstring).
+
+    ``guesses``: parameter dicts [SI] the base model's MAP starts from first (names the
+    base model lacks are ignored), before the rig fit and the cold starts.
 
     Returns
     -------
@@ -56,7 +68,9 @@ def last_layer_setup(record, train_window, test_window, *, model, priors: PriorS
     base_problem = make_problem(record, train_window, test_window, model=base, priors=base_priors,
                                 error=error, substeps=substeps)  # fmt: skip
     log("last layer: MAP of the base model")
-    params, x0 = prepare_start(base_problem, n_starts=2, seed=seed).map_point()
+    starts = (*guesses, RIG_FIT)
+    params, x0 = prepare_start(base_problem, n_starts=len(starts) + BASE_COLD_STARTS, seed=seed,
+                               guesses=starts).map_point()  # fmt: skip
     problem = make_problem(record, train_window, test_window, model=model, priors=priors, error=error,
                            substeps=substeps)  # fmt: skip
     log("last layer: joint training of the hybrid (Adam, then L-BFGS on V)")

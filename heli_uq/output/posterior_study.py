@@ -141,7 +141,7 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
         priors = PriorSet.default(model) if priors is None else priors
         priors, trained, last_layer = last_layer_setup(record, train, test, model=model, priors=priors,
                                                        error=error, substeps=substeps, seed=seed,
-                                                       log=stage)  # fmt: skip
+                                                       guesses=guesses, log=stage)  # fmt: skip
         guesses = [*trained, *guesses]
         stage(f"last layer: V {last_layer['v_base']:.4g} -> {last_layer['v_trained']:.4g} rad^2 in "
               f"{last_layer['train_seconds']:.0f} s; hidden layers fixed")  # fmt: skip

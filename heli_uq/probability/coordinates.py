@@ -89,6 +89,10 @@ from heli_uq.model.terms.rigid_body import (
 __all__ = ["Coordinates", "STRATEGIES"]
 
 STRATEGIES = ("auto", "identifiable", "log")
+#: The body fraction ``m (r_c^2 + h^2) / M11`` is kept this far inside (0, 1) when it is
+#: turned into its logit: an optimiser can push ``J_bc`` to 0, where the sigmoid of a
+#: large coordinate rounds to exactly 1 and the logit of the values is infinite.
+BODY_FRACTION_EPS = 1e-12
 _PREFIX = {"log": "log_", "identity": "", "logit": "logit_"}
 
 
@@ -242,6 +246,7 @@ class Coordinates:
         z = []
         if self.resolved == "identifiable":
             m11, gamma, frac, rho = body_to_ratios(v)
+            frac = min(max(frac, BODY_FRACTION_EPS), 1.0 - BODY_FRACTION_EPS)
             z += [math.log(m11), math.log(gamma), math.log(frac / (1.0 - frac)), rho]
             z = z[: sum(1 for s in self._specs if s[2] == "body")]
         for _, n, kind in self._specs:

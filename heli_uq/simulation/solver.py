@@ -27,6 +27,7 @@ from collections.abc import Mapping
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 from jax.custom_derivatives import SymbolicZero
 from jax.flatten_util import ravel_pytree
@@ -113,17 +114,22 @@ def _cached_sincos_jvp(primals, tangents):
 def _rk4_step(model, prepared, y, u, h, trig=None):
     """One classical RK4 step of ``x' = v, v' = a(x, v, u)`` with ``u`` held.
 
+    ``u`` (2,) [V], or (4,): the voltages and the model's input-only torques at them
+    [N m] (:func:`held_inputs`).
+
     Returns the new state (4,) and ``(sin, cos)`` of the pitch angle at the four stages,
     shape (4, 2); ``trig`` (4, 2) replaces their computation when given.
     """
     x, v = y[:2], y[2:]
+
+    held = None if u.shape[0] == 2 else u[2:]  # the input-only torques, held with u
 
     def acc(i, xi, vi):
         if trig is None:
             sc = _sincos(xi[0])
         else:
             sc = _cached_sincos(xi[0], trig[i, 0], trig[i, 1])
-        return model.acceleration(prepared, xi, vi, u, sc), jnp.stack(sc)
+        return model.acceleration(prepared, xi, vi, u[:2], sc, held), jnp.stack(sc)
 
     a1, t1 = acc(0, x, v)
     v2 = v + 0.5 * h * a1
@@ -143,7 +149,7 @@ def _make_trajectory(static_model, unravel, substeps: int):
     ``args`` is the flat float64 vector of ``(dynamic model leaves, prepared parameters,
     dt)`` (``unravel`` restores the pytree): one loop-invariant buffer instead of dozens
     of scalars keeps the per-step kernel count, and so the run time, low.
-    ``us`` (N, 2); ``y0`` (4,).
+    ``us`` (N, 2), or (N, 4) with the held torques (:func:`held_inputs`); ``y0`` (4,).
     """
 
     def step_tree(args_tree, y, u, trig=None):
@@ -224,6 +230,27 @@ def _make_trajectory(static_model, unravel, substeps: int):
     return trajectory, forward
 
 
+def held_inputs(model: HeliModel, p, u):
+    """The voltages ``u`` (N, 2) [V] with the model's input-only torques at each sample
+    appended, shape (N, 4) (``u`` itself if the model has none).
+
+    The voltages are held on each sample interval, so a torque of the voltages alone
+    (a network of ``u``, a quadratic thrust, a feature torque) is constant there: it is
+    evaluated once per sample instead of at every Runge-Kutta stage, and, when ``u`` is
+    concrete, once per distinct voltage pair (a record holds a few dozen).  ``p``: the
+    prepared parameter values (:meth:`HeliModel.prepare`).
+    """
+    if not model.holds_torque:
+        return u
+    torque = jax.vmap(lambda uk: model.held_torque(p, uk))
+    if isinstance(u, jax.core.Tracer):
+        held = torque(u)
+    else:
+        pairs, inverse = np.unique(np.asarray(u), axis=0, return_inverse=True)
+        held = torque(jnp.asarray(pairs))[jnp.asarray(inverse.reshape(-1))]
+    return jnp.concatenate([u, held], axis=1)
+
+
 def _check_inputs(x0, u, substeps, gradients):
     if gradients not in ("adjoint", "autodiff"):
         raise ParameterError(f"gradients: expected 'adjoint' or 'autodiff', found {gradients!r}")
@@ -297,7 +324,7 @@ def solve(
     dt = jnp.asarray(dt, dtype=jnp.float64)
     args, unravel = ravel_pytree((dyn_model, prepared, dt))
     adjoint, plain = _make_trajectory(static_model, unravel, substeps)
-    ys = (adjoint if gradients == "adjoint" else plain)(args, u, x0)
+    ys = (adjoint if gradients == "adjoint" else plain)(args, held_inputs(model, prepared[1], u), x0)
     finite = jnp.all(jnp.isfinite(ys))
     bounded = jnp.all(jnp.abs(jnp.where(finite, ys, 0.0)) < MAX_ABS_STATE)
     result = jnp.where(

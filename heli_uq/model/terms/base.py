@@ -92,7 +92,18 @@ class AbstractTorque(AbstractTerm):
     ``p``: dict of parameter values by name; ``x = (theta, psi)`` [rad];
     ``v = (omega_theta, omega_psi)`` [rad/s]; ``u = (u_theta, u_psi)`` [V] after the
     input maps.  Must be differentiable in ``p``, ``x``, ``v`` and jit-able.
+
+    A torque that reads neither ``x`` nor ``v`` sets :attr:`input_only`: the voltages
+    are held on each sample interval, so the simulator evaluates it once per sample
+    instead of at every Runge-Kutta stage (:meth:`HeliModel.held_torque`).
     """
+
+    @property
+    def input_only(self) -> bool:
+        """True if the torque depends on the parameters and the voltages only (default
+        False; a term overrides it with a class variable, or a property when it depends
+        on the term's configuration)."""
+        return False
 
     @abc.abstractmethod
     def __call__(self, p, x, v, u):

@@ -41,6 +41,7 @@ class CoulombFriction(AbstractEffect, AbstractTorque):
     """``-F_c tanh(omega / omega_s)`` on ``axis`` (module docstring)."""
 
     kind: ClassVar[str] = "coulomb_friction"
+    input_only: ClassVar[bool] = False
     axis: str = eqx.field(static=True, default="yaw")
     omega_s: float = eqx.field(static=True, default=OMEGA_S)
 

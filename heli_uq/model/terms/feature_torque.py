@@ -73,6 +73,7 @@ class FeatureTorque(AbstractEffect, AbstractTorque):
     """
 
     kind: ClassVar[str] = "feature_torque"
+    input_only: ClassVar[bool] = True
     axis: str = eqx.field(static=True, default="yaw")
     features: tuple = eqx.field(static=True, default=("1",), converter=_features)
 

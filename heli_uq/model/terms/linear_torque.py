@@ -39,6 +39,7 @@ class LinearTorque(AbstractTorque):
     """``F = K u - D v`` (paper Sec. 2.5), returning ``(T_theta, T_psi)`` [N m]."""
 
     kind: ClassVar[str] = "linear"
+    input_only: ClassVar[bool] = False
 
     def parameters(self) -> tuple[Parameter, ...]:
         return LINEAR_TORQUE_PARAMETERS

@@ -139,6 +139,11 @@ class NeuralTorque(AbstractEffect, AbstractTorque):
     def input_names(self) -> tuple[str, ...]:
         return NN_INPUTS[self.inputs]
 
+    @property
+    def input_only(self) -> bool:
+        """A network of the voltages alone is evaluated once per sample (not per stage)."""
+        return self.inputs == "u"
+
     # ------------------------------------------------------------ parameters
     def _declare(self):
         pars = []

@@ -22,6 +22,7 @@ class QuadraticDrag(AbstractEffect, AbstractTorque):
     """``-c omega |omega|`` on ``axis``."""
 
     kind: ClassVar[str] = "quadratic_drag"
+    input_only: ClassVar[bool] = False
     axis: str = eqx.field(static=True, default="yaw")
 
     def _declare(self):

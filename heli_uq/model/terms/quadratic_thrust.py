@@ -26,6 +26,7 @@ class QuadraticThrust(AbstractEffect, AbstractTorque):
     """``±k_q u |u|`` of ``axis``' own motor on ``axis`` (module docstring)."""
 
     kind: ClassVar[str] = "quadratic_thrust"
+    input_only: ClassVar[bool] = True
     axis: str = eqx.field(static=True, default="yaw")
 
     def _declare(self):

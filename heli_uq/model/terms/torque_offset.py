@@ -21,6 +21,7 @@ class TorqueOffset(AbstractEffect, AbstractTorque):
     """Constant torque ``T_0`` on ``axis``."""
 
     kind: ClassVar[str] = "torque_offset"
+    input_only: ClassVar[bool] = True
     axis: str = eqx.field(static=True, default="yaw")
 
     def _declare(self):

@@ -24,6 +24,7 @@ class TorsionalSpring(AbstractEffect, AbstractTorque):
     """``-k (angle - psi_0)`` on ``axis``."""
 
     kind: ClassVar[str] = "torsional_spring"
+    input_only: ClassVar[bool] = False
     axis: str = eqx.field(static=True, default="yaw")
 
     def _declare(self):

@@ -109,6 +109,37 @@ def test_effect_equations_match_the_table(kind, axis):
         np.testing.assert_allclose(np.asarray(got), expected, rtol=1e-12, atol=1e-15)
 
 
+def test_torques_flagged_input_only_read_neither_angles_nor_rates():
+    """A torque flagged ``input_only`` is evaluated once per sample and held (the solver
+    never passes it the states), so it must not depend on them: its value and its
+    derivatives with respect to ``x`` and ``v`` are checked at random states."""
+    terms = [*ALL_EFFECTS, "pitch:torque_offset", "yaw:quadratic_thrust",
+             {"effect": "neural_torque", "axis": "yaw", "hidden": 3, "inputs": "u"},
+             {"effect": "neural_torque", "axis": "pitch", "hidden": 3, "inputs": "u,x,v"},
+             {"effect": "feature_torque", "axis": "yaw", "features": ["u_psi^2", "cos(u_psi)"]}]  # fmt: skip
+    model = build_model(terms)
+    rng = np.random.default_rng(1)
+    learned = [par.name for t in model.torques if t.kind in ("neural_torque", "feature_torque")
+               for par in t.parameters()]  # fmt: skip
+    p = model.complete({**_values(build_model(list(ALL_EFFECTS))),
+                        **{n: float(rng.normal(0.0, 0.5)) for n in learned}})
+    flagged = {t.label: t.input_only for t in model.torques}
+    assert flagged["neural_torque(yaw)"] and not flagged["neural_torque(pitch)"]
+    assert not flagged["linear"] and not flagged["coulomb_friction(yaw)"]
+    u = jnp.asarray(rng.uniform([1.2, 0.5], [1.5, 1.6]))
+    for term in model.torques:
+        if not term.input_only:
+            continue
+
+        def torque(x, v, term=term):
+            return jnp.stack([jnp.asarray(f, dtype=jnp.float64) for f in term(p, x, v, u)])
+
+        x, v = jnp.asarray(rng.normal(size=2)), jnp.asarray(rng.normal(size=2))
+        np.testing.assert_array_equal(torque(x, v), torque(jnp.zeros(2), jnp.zeros(2)), err_msg=term.label)
+        jx, jv = jax.jacfwd(torque, argnums=(0, 1))(x, v)
+        assert not np.any(np.asarray(jx)) and not np.any(np.asarray(jv)), term.label
+
+
 def test_effect_names_carry_the_axis_and_the_bare_name():
     model = parse_effects(",".join(ALL_EFFECTS))
     names = {p.name: p for t in model.effects for p in t.parameters()}

@@ -166,8 +166,7 @@ class HeliModel(eqx.Module):
         """Sum of the ``input_only`` torques at voltages ``u`` (2,) [V] before the input
         maps, shape (2,) [N m]; ``p`` with the derived values (:meth:`prepare`)."""
         terms = tuple(t for t in self.torques if t.input_only)
-        total = _sum_forces(terms, p, (0.0, 0.0), (0.0, 0.0), self.input_voltages(p, u))
-        return jnp.stack([jnp.asarray(f, dtype=jnp.float64) for f in total])
+        return _stacked(_sum_forces(terms, p, (0.0, 0.0), (0.0, 0.0), self.input_voltages(p, u)))
 
     def force(self, p, x, v, u, held=None):
         """Generalized force ``(T_theta, T_psi)`` [N m] of all torque terms at mapped ``u``,
@@ -183,7 +182,7 @@ class HeliModel(eqx.Module):
 
     def force_vector(self, p, x, v, u):
         """:meth:`force` as an array of shape (2,) [N m]."""
-        return jnp.stack([jnp.asarray(f, dtype=jnp.float64) for f in self.force(p, x, v, u)])
+        return _stacked(self.force(p, x, v, u))
 
     def acceleration(self, prepared, x, v, u, sc=None, held=None):
         """Generalized accelerations (2,) [rad/s^2]; ``u`` (2,) [V] before the input maps.
@@ -232,6 +231,11 @@ class HeliModel(eqx.Module):
     def label(self) -> str:
         """Short text, e.g. ``"mechanistic + coulomb_friction(yaw)"``."""
         return " + ".join(["mechanistic"] + [t.label for t in self.effects])
+
+
+def _stacked(pair):
+    """A force pair of scalars (some maybe literal ``0.0``) as an array (2,) [N m]."""
+    return jnp.stack([jnp.asarray(f, dtype=jnp.float64) for f in pair])
 
 
 def _sum_forces(terms, p, x, v, u):

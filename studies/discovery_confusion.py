@@ -24,11 +24,14 @@ from __future__ import annotations
 
 import argparse
 import collections
+import copy
 import json
 import pathlib
 import sys
 import tempfile
 import time
+
+import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from _study import RESULTS, append_jsonl, provenance  # noqa: E402
@@ -46,18 +49,29 @@ HIDDEN = {
             "quadratic_thrust": {"k_q": 0.02}, "torque_offset": {"T_0": -0.01}},
     "pitch": {"deadband": {"delta": 0.3}, "coulomb_friction": {"F_c": 0.003},
               "quadratic_drag": {"c": 0.02}, "torsional_spring": {"k": 0.003, "psi_0": -0.5},
-              "quadratic_thrust": {"k_q": 0.005}, "torque_offset": {"T_0": 0.002}},
+              "quadratic_thrust": {"k_q": 0.001}, "torque_offset": {"T_0": 0.002}},
 }  # fmt: skip
+#: A record whose pitch leaves this range [rad] is refused: the real rig hits its stops
+#: long before the body turns over (a pitch thrust k_q = 0.002 N m/V^2 on a staircase
+#: already lifts it over the top and spins it for 100 rad).
+PITCH_RANGE = (-np.pi / 2, np.pi / 2)
 NOISE = (0.003, 0.008)
 
 
-def make_record(case: str, inputs: str, seed: int, seconds: float):
-    """The synthetic record of ``case`` (``"none"`` or ``"axis:effect"``) and its truth."""
+class ImplausibleRecord(ValueError):
+    """The hidden effect drives the pitch outside :data:`PITCH_RANGE` (the case is skipped)."""
+
+
+def make_record(case: str, inputs: str, seed: int, seconds: float, hidden=HIDDEN):
+    """The synthetic record of ``case`` (``"none"`` or ``"axis:effect"``) and its truth.
+
+    ``hidden`` gives the hidden values (default :data:`HIDDEN`, same layout).
+    """
     effects = [] if case == "none" else case.split("+")
     model = build_model(effects)
     truth = dict(RIG_FIT)
     for term in model.effects:
-        truth.update({p.name: HIDDEN[term.axis][term.kind][p.bare] for p in term.parameters()})
+        truth.update({p.name: hidden[term.axis][term.kind][p.bare] for p in term.parameters()})
 
     def reference(p, x0, u, dt):
         return reference_solve(p, x0, u, dt, model=model)
@@ -65,11 +79,16 @@ def make_record(case: str, inputs: str, seed: int, seconds: float):
     u = inputs if inputs == "rig_steps" else load_data("experimental").window(0, seconds).u
     rec = synthetic_experiment(truth, RIG_FIT_X0, duration=seconds, inputs=u, noise_std=NOISE,
                                seed=seed, simulator=reference, quantum=ENCODER_QUANTUM)  # fmt: skip
+    lo, hi = rec.y[:, 0].min(), rec.y[:, 0].max()
+    if lo < PITCH_RANGE[0] or hi > PITCH_RANGE[1]:
+        raise ImplausibleRecord(f"{case} ({inputs}, seed {seed}): the pitch spans [{lo:.2f}, "
+                                f"{hi:.2f}] rad, outside the rig's range {PITCH_RANGE}: hidden "
+                                "values too large")
     return rec, truth, model
 
 
 def run_case(case: str, inputs: str, seed: int, args) -> dict:
-    rec, truth, model = make_record(case, inputs, seed, args.seconds)
+    rec, truth, model = make_record(case, inputs, seed, args.seconds, args.hidden)
     split = 0.7 * args.seconds
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -86,7 +105,8 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
                 covered[p.name] = {"truth": truth[p.name], "ci95": ci,
                                    "covered": ci[0] <= truth[p.name] <= ci[1]}
     best = next((c for c in res["candidates"] if c.get("score") is not None), None)
-    return {"case": case, "inputs": inputs, "seed": seed, "named": named,
+    values = {p.name: truth[p.name] for term in model.effects for p in term.parameters()}
+    return {"case": case, "inputs": inputs, "seed": seed, "hidden": values, "named": named,
             "correct": set(added) == set(case.split("+")) if added else case == "none",
             "covered": covered, "best": best and {k: best[k] for k in ("effect", "axis", "score",
                                                                         "score_se", "score_per_sample")},
@@ -115,6 +135,19 @@ def confusion(path) -> str:
     return "\n".join(lines)
 
 
+def hidden_value(text: str):
+    """``"axis:effect:name=value"`` -> ``(axis, effect, name, value)``, checked against HIDDEN."""
+    try:
+        key, value = text.split("=")
+        axis, kind, name = key.split(":")
+        if name not in HIDDEN[axis][kind]:
+            raise KeyError(name)
+        return axis, kind, name, float(value)
+    except (ValueError, KeyError) as err:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected AXIS:EFFECT:NAME=VALUE with a name of "
+                                         f"HIDDEN ({err})") from None
+
+
 def main(argv=None) -> int:
     all_cases = ["none"] + [f"{a}:{k}" for a in AXES for k in EFFECTS]
 
@@ -135,9 +168,15 @@ def main(argv=None) -> int:
     ap.add_argument("--scheduler", default="local")
     ap.add_argument("--candidates", nargs="+", default=None, metavar="AXIS:EFFECT",
                     help="effects to try (default: every effect on each axis)")
+    ap.add_argument("--hidden", nargs="+", default=[], type=hidden_value, metavar="AXIS:EFFECT:NAME=VALUE",
+                    help="hidden values other than HIDDEN's, e.g. pitch:torsional_spring:k=0.03")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     ap.add_argument("--out", default=str(RESULTS / "discovery_confusion.jsonl"))
     args = ap.parse_args(argv)
+    hidden = copy.deepcopy(HIDDEN)
+    for axis, kind, name, value in args.hidden:
+        hidden[axis][kind][name] = value
+    args.hidden = hidden
     import numpyro
 
     from heli_uq.log import configure_cli
@@ -148,7 +187,11 @@ def main(argv=None) -> int:
     for seed in args.seeds:
         for inputs in args.inputs:
             for case in args.cases:
-                row = run_case(case, inputs, seed, args)
+                try:
+                    row = run_case(case, inputs, seed, args)
+                except ImplausibleRecord as err:
+                    print(f"skipped: {err}", flush=True)
+                    continue
                 row.update(provenance(__file__, argv, row["discover_s"]))
                 append_jsonl(args.out, row)
                 print(f"{case} ({inputs}, seed {seed}) -> {row['named']} in {row['discover_s']:.0f} s; "

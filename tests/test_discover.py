@@ -97,3 +97,21 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
         code = main(["discover", str(csv), "--out", str(tmp_path / "o"), *argv])
         err = capsys.readouterr().err.strip().splitlines()
         assert code == 2 and len(err) == 1 and needle in err[0], (argv, err)
+
+
+def _gap_record(v, rmse):
+    return {"rmse_theta": rmse, "rmse_psi": rmse, "V": v, "coverage90_theta": 0.9, "coverage90_psi": 0.9}
+
+
+def test_a_refit_that_predicts_worse_than_the_base_is_reported_not_passed_as_a_fix():
+    from heli_uq.discovery.report import _decision, gap_warnings
+
+    before = {"train": _gap_record(0.010, 0.07), "test": _gap_record(0.020, 0.10)}
+    better = {"train": _gap_record(0.005, 0.05), "test": _gap_record(0.019, 0.09)}
+    worse_on_test = {"train": _gap_record(0.005, 0.05), "test": _gap_record(0.057, 0.17)}
+    assert gap_warnings(before, better) == []
+    (warning,) = gap_warnings(before, worse_on_test)
+    assert "test window" in warning and "0.02 -> 0.057" in warning
+    steps = [{"score": 100.0, "score_se": 10.0}]
+    assert "Warning" not in _decision(["yaw:deadband"], [], steps, before, better)
+    assert warning in _decision(["yaw:deadband"], [], steps, before, worse_on_test)

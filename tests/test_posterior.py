@@ -20,11 +20,16 @@ from heli_uq.simulation import SYNTHETIC_PARAMS, synthetic_experiment
 NUTS = dict(chains=2, warmup=150, draws=150, chunk=75, seed=0, progress=False, target_accept=0.95)
 #: Sampler health on the shared record.  It is short (4 s) with 3 mrad noise and its
 #: posterior is far from Gaussian (weakly identified log-gains K_theta_psi, J_s): at
-#: target acceptance 0.95 a few transitions diverge (0-10 of 600 measured over seeds,
-#: scattered through the bulk), where the full record gives 1 in 4000.  A sampler that
-#: fails on this geometry diverges more often (at 0.9 with the Laplace mass matrix kept
-#: fixed: 16-30 of 600) or saturates the tree depth on every draw.
-MAX_DIVERGENT_FRACTION = 0.02
+#: target acceptance 0.95 a few transitions diverge, where the full record gives 1 in
+#: 4000.  The count is chaotic in the start and the seed (a 1-ulp change of the start
+#: moved seed 0 from 0 to 19 of 300), so the bounds come from its spread, measured over
+#: seeds 0-7 at exactly these settings (2026-11-25): 0, 0, 3, 0, 7, 9, 1, 0 divergent of
+#: 300 (at most 3 %); 8-46 % of draws at the tree-depth limit.  They catch a broken
+#: sampler (a wrong gradient or whitening diverges or saturates on most draws), not a
+#: few percent.
+MAX_DIVERGENT_FRACTION = 0.05
+#: Most draws at the tree-depth limit (measured: at most 46 %, above).
+MAX_SATURATED_FRACTION = 0.6
 #: The 90 % interval of the residual scale must contain the truth.
 INTERVAL = (0.05, 0.95)
 #: The posterior mean of the gravity ratio lies within this many posterior sd of the truth.
@@ -62,7 +67,8 @@ def test_nuts_recovers_identified_quantities(nuts_run, synthetic_start):
         lo, hi = np.quantile(s["sigma"][..., j], INTERVAL)
         assert lo < SYNTHETIC_NOISE < hi
     assert nuts_run.stats["diverging"].mean() <= MAX_DIVERGENT_FRACTION
-    assert np.mean(nuts_run.stats["num_steps"] >= 2 ** nuts_run.info["max_tree_depth"] - 1) < 0.5
+    saturated = nuts_run.stats["num_steps"] >= 2 ** nuts_run.info["max_tree_depth"] - 1
+    assert saturated.mean() <= MAX_SATURATED_FRACTION
 
 
 @pytest.mark.xdist_group("nuts_run")

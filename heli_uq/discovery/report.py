@@ -25,7 +25,7 @@ from heli_uq.io import atomic_write_text
 from heli_uq.model import build_model
 from heli_uq.output import parameter_summary, plot_bands, sample_posterior
 
-__all__ = ["write_outputs", "DISCOVERY_KEYS"]
+__all__ = ["write_outputs", "gap_warnings", "DISCOVERY_KEYS"]
 
 #: The keys of ``discovery.json``, in order.
 DISCOVERY_KEYS = ("effect", "axis", "parameters", "gap_before", "gap_after", "candidates",
@@ -166,6 +166,29 @@ def _coverage(gap: dict) -> dict:
     return {w: {"theta": g["coverage90_theta"], "psi": g["coverage90_psi"]} for w, g in gap.items()}
 
 
+def gap_warnings(before: dict, after: dict) -> list[str]:
+    """What the refitted model predicts worse than the base: one sentence per window whose
+    V (the mean squared error of the posterior-mean simulation, both angles) grew.
+
+    A candidate is chosen on Laplace draws at its MAP; the NUTS refit can land elsewhere
+    (an unconverged chain, a second mode), and an added effect must not be reported as a
+    fix when the refitted model fits the record worse.
+
+    Parameters
+    ----------
+    before, after : dict
+        Gap records ``{window: {rmse_theta, rmse_psi, V, ...}}`` (module docstring).
+    """
+    out = []
+    for w in before:
+        if after[w]["V"] > before[w]["V"]:
+            out.append(f"the refitted model predicts the {w} window worse than the base: V "
+                       f"{before[w]['V']:.4g} -> {after[w]['V']:.4g} rad^2 (RMSE pitch "
+                       f"{before[w]['rmse_theta']:.3f} -> {after[w]['rmse_theta']:.3f}, yaw "
+                       f"{before[w]['rmse_psi']:.3f} -> {after[w]['rmse_psi']:.3f} rad)")  # fmt: skip
+    return out
+
+
 def _decision(added, rows, steps, before, after) -> str:
     w = "test" if "test" in before else "window"
     if not added:
@@ -177,10 +200,12 @@ def _decision(added, rows, steps, before, after) -> str:
     tied = steps[0].get("tied") or []
     tie = (f" (tied on held-out blocks with {', '.join(tied)}; the fitting window decided)"
            if tied else "")  # fmt: skip
+    worse = gap_warnings(before, after)
+    warn = f" Warning: {'; '.join(worse)}." if worse else ""
     return (f"Added {names}: held-out score +{steps[0]['score']:.0f} ± {steps[0]['score_se']:.0f} nats "
             f"over the base at the first step{tie}; yaw RMSE on the {w} window "
             f"{before[w]['rmse_psi']:.3f} -> {after[w]['rmse_psi']:.3f} rad, yaw 90 % coverage "
-            f"{before[w]['coverage90_psi']:.0%} -> {after[w]['coverage90_psi']:.0%}.")  # fmt: skip
+            f"{before[w]['coverage90_psi']:.0%} -> {after[w]['coverage90_psi']:.0%}.{warn}")  # fmt: skip
 
 
 def _candidates_figure(cands: list[dict], n_scored: int):
@@ -291,6 +316,9 @@ def _report(result, where, ranking, steps, base, budget, fit_window, score_windo
             for name, p in a["parameters"].items():
                 lines.append(f"- {a['effect']} ({a['axis']}): {name} = {p['mean']:.4g} "
                              f"[{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}] {p['unit']}")  # fmt: skip
+        worse = gap_warnings(result["gap_before"], result["gap_after"])
+        if worse:
+            lines += ["", "**Warning: the gap did not shrink.**", ""] + [f"- {w}" for w in worse]
         if health is not None and not health.get("ok", True):
             lines += ["", "**Warning: the NUTS refit failed its health checks** (`refit/summary.json`):", ""]
             lines += [f"- {w}" for w in health.get("warnings", [])]

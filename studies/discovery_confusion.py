@@ -52,8 +52,8 @@ HIDDEN = {
               "quadratic_thrust": {"k_q": 0.001}, "torque_offset": {"T_0": 0.002}},
 }  # fmt: skip
 #: A record whose pitch leaves this range [rad] is refused: the real rig hits its stops
-#: long before the body turns over (a pitch thrust k_q = 0.002 N m/V^2 on a staircase
-#: already lifts it over the top and spins it for 100 rad).
+#: long before the body turns over (on the seed-3 staircase a pitch thrust k_q = 0.002
+#: N m/V^2 already lifts it to 7.8 rad, 0.005 spins it through 170 rad).
 PITCH_RANGE = (-np.pi / 2, np.pi / 2)
 NOISE = (0.003, 0.008)
 
@@ -168,15 +168,15 @@ def main(argv=None) -> int:
     ap.add_argument("--scheduler", default="local")
     ap.add_argument("--candidates", nargs="+", default=None, metavar="AXIS:EFFECT",
                     help="effects to try (default: every effect on each axis)")
-    ap.add_argument("--hidden", nargs="+", default=[], type=hidden_value, metavar="AXIS:EFFECT:NAME=VALUE",
+    ap.add_argument("--hidden", nargs="+", default=[], type=hidden_value, dest="overrides",
+                    metavar="AXIS:EFFECT:NAME=VALUE",
                     help="hidden values other than HIDDEN's, e.g. pitch:torsional_spring:k=0.03")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     ap.add_argument("--out", default=str(RESULTS / "discovery_confusion.jsonl"))
     args = ap.parse_args(argv)
-    hidden = copy.deepcopy(HIDDEN)
-    for axis, kind, name, value in args.hidden:
-        hidden[axis][kind][name] = value
-    args.hidden = hidden
+    args.hidden = copy.deepcopy(HIDDEN)  # the values run_case hides: HIDDEN with the overrides
+    for axis, kind, name, value in args.overrides:
+        args.hidden[axis][kind][name] = value
     import numpyro
 
     from heli_uq.log import configure_cli

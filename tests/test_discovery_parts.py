@@ -132,6 +132,48 @@ def test_a_nested_candidate_in_a_poor_basin_is_refitted_from_effect_off(trap_rec
     assert candidates.score_fitted(fitted, guarded)["off_start"] is True
 
 
+@pytest.mark.parametrize("fallback_fails", [False, True])
+def test_a_start_far_above_the_current_fit_is_abandoned_for_the_fallback(trap_record, monkeypatch,
+                                                                         fallback_fails):  # fmt: skip
+    """With no margin, the trapped dead-band start (above the base) is given up before its
+    finish and the fallback from "effect off" is fitted instead.  If the fallback fails,
+    the abandoned start is finished after all: a candidate is never lost to the shortcut."""
+    import heli_uq.discovery.candidates as candidates
+    from heli_uq.errors import ParameterError
+    from heli_uq.inference.start import PoorBasin
+
+    rec, base = trap_record
+    effects = ("pitch:deadband",)
+    off = candidates.off_start(base.params, list(effects))
+    task = candidates.FitTask(rec, (0.0, 14.0), (14.0, 20.0), effects, ({**base.params, "delta_pitch": 5.0},),
+                              0, 1, 8, off=off, floor=base.start.map_value)  # fmt: skip
+    monkeypatch.setattr(candidates, "ABANDON_NATS", 0.0)
+    monkeypatch.setattr(candidates, "NESTED_SLACK_NATS", 0.0)
+    calls, real = [], candidates.prepare_start
+
+    def spy(problem, **kw):
+        start = "off" if kw["guesses"] == (off,) else "trapped"
+        if fallback_fails and start == "off":
+            calls.append("off failed")
+            raise ParameterError("no MAP start gave a finite log density")
+        try:
+            out = real(problem, **kw)
+        except PoorBasin:
+            calls.append(f"{start} abandoned")
+            raise
+        calls.append(f"{start} finished")
+        return out
+
+    monkeypatch.setattr(candidates, "prepare_start", spy)
+    fitted = candidates.fitted_predictive(task)
+    if fallback_fails:
+        assert calls == ["trapped abandoned", "off failed", "trapped finished"]
+        assert not fitted.from_off and fitted.start.map_value > base.start.map_value
+    else:
+        assert calls == ["trapped abandoned", "off finished"]
+        assert fitted.from_off and fitted.start.map_value <= base.start.map_value + OFF_PRIOR_NATS
+
+
 def test_input_blocks_follow_voltage_changes_and_merge_short_runs():
     dt = 0.01
     u = np.zeros((1000, 2))

@@ -7,7 +7,8 @@ the sparse regression, and at its probe value), with iid errors.  A candidate ne
 current model, so its MAP should be at least as good; if its ``-log p`` ends more than
 :data:`NESTED_SLACK_NATS` above the current model's (a start in a poor basin), it is refitted
 from the current MAP with the new effect switched off (:func:`off_start`), which starts
-from the current model's fit and can only improve on it, and the better MAP is kept.  It
+from the current model's fit and can only improve on it, and the better MAP is kept (a
+start :data:`ABANDON_NATS` above is given up before its costly finish).  It
 then draws the Laplace approximation at the MAP, simulates every draw once over fitting
 and held-out window, and returns the gap metrics of both windows and the held-out block scores
 (:mod:`heli_uq.discovery.score`).  The result is a JSON-able dict, so it can be stored
@@ -25,18 +26,25 @@ from heli_uq.data import Experiment
 from heli_uq.discovery.score import MIN_BLOCKS, block_scores, gap_metrics, input_blocks
 from heli_uq.errors import ParameterError
 from heli_uq.inference import prepare_start
+from heli_uq.inference.start import PoorBasin
 from heli_uq.model import AXES, RIG_FIT, X0_NAMES, build_model
 from heli_uq.output.inference_data import simulate_draws
 from heli_uq.probability import make_problem
 
 __all__ = ["FitTask", "fit_and_score", "score_fitted", "Fitted", "fitted_predictive", "probe_values",
-           "warm_starts", "off_start", "NESTED_SLACK_NATS", "OFF_FRACTION"]
+           "warm_starts", "off_start", "NESTED_SLACK_NATS", "ABANDON_NATS", "OFF_FRACTION"]
 
 #: A nested candidate's MAP may end this far [nats of -log posterior] above the current
 #: model's before it is refitted from "effect off".  The slack covers the new parameters'
 #: own prior terms (in log coordinates a parameter the data do not want costs a few nats);
 #: the poor basins this guards against are thousands of nats worse.
 NESTED_SLACK_NATS = 25.0
+#: A candidate's start whose MAP (before its substeps are raised) ends this far [nats]
+#: above the current model's is abandoned for the nested fallback.  Raising the substeps
+#: moves a MAP little: measured on a 131 s record (yaw friction, F_c = 0.076 N m at the
+#: poor MAP, substeps 3 -> 14) by 50 nats, where that start was 39,000 nats above the
+#: current model and finishing it took 117 of the candidate's 163 s.
+ABANDON_NATS = 1000.0
 #: "Off" of a parameter whose off value (its default) is a bound of its support, e.g.
 #: ``F_c = 0`` of a log coordinate: this fraction of its probe value, close enough to off
 #: that the start reproduces the current fit, inside the support so the fit can grow it.
@@ -192,17 +200,22 @@ def fitted_predictive(task: FitTask) -> Fitted:
 
 def _nested_map(problem, task: FitTask):
     """``(start, from_off)``: the MAP of ``task``'s starts, or of the nested fallback if
-    that is better (module docstring)."""
+    that is better (module docstring).  A start whose MAP ends more than
+    :data:`ABANDON_NATS` above the current model's is abandoned before its substeps and
+    Laplace covariance (:class:`~heli_uq.inference.start.PoorBasin`) and the fallback
+    fitted; if the fallback fails too, that start is finished after all."""
 
-    def fit(guesses, n_starts):
+    def fit(guesses, n_starts, abandon_above=None):
         return prepare_start(problem, n_starts=n_starts, seed=task.seed, guesses=guesses,
-                             newton_steps=task.newton_steps, polish_best=1)  # fmt: skip
+                             newton_steps=task.newton_steps, polish_best=1,
+                             abandon_above=abandon_above)  # fmt: skip
 
+    nested = task.off is not None and task.floor is not None
     try:
-        start, error = fit(task.guesses, task.n_starts), None
-    except ParameterError as exc:  # no start finite: the fallback may still be
+        start, error = fit(task.guesses, task.n_starts, task.floor + ABANDON_NATS if nested else None), None
+    except ParameterError as exc:  # no start finite (or a poor basin): the fallback may still be
         start, error = None, exc
-    if task.off is None or task.floor is None:
+    if not nested:
         if error is not None:
             raise error
         return start, False
@@ -211,6 +224,8 @@ def _nested_map(problem, task: FitTask):
     try:
         again = fit((task.off,), 1)
     except ParameterError:
+        if isinstance(error, PoorBasin):
+            return fit(task.guesses, task.n_starts), False
         if error is not None:
             raise error from None
         return start, False

@@ -144,6 +144,7 @@ display(Image("out/hybrid/last_layer/bands.png"))
 
 # %%
 from heli_uq.model.terms.rigid_body import yaw_inertia
+from heli_uq.output.network import network_pairs
 
 truth = None
 if SMALL:
@@ -152,13 +153,12 @@ if SMALL:
     pitch = float(np.median(np.asarray(record.y)[: problem.n_train, 0]))
     ratio = float(yaw_inertia(RIG_FIT, pitch)) / np.asarray(yaw_inertia(body, pitch))
     idata.posterior["nn_torque_yaw"] = post["nn_torque_yaw"] * ratio[..., None]
-    pts = np.column_stack([post["nn_point_yaw_u_theta"], post["nn_point_yaw_u_psi"]])
+    pts, held = network_pairs(idata, "yaw")  # voltage pairs and the samples held at each
     hidden_model = build_model(["yaw:quadratic_thrust"])
     p_true = hidden_model.complete({**RIG_FIT, **HIDDEN})
     true = np.array([float(hidden_model.effects[0](p_true, jnp.zeros(2), jnp.zeros(2), jnp.asarray(q))[1])
                      for q in pts])
-    held = np.asarray(record.u)[: problem.n_train]
-    weight = np.sqrt([np.all(held == q, axis=1).sum() for q in pts])
+    weight = np.sqrt(held)
     beta = np.linalg.lstsq(pts * weight[:, None], true * weight, rcond=None)[0]
     truth = true - pts @ beta
 fig = plot_network_torque(idata, "yaw", truth=truth)

@@ -40,11 +40,10 @@ import time
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _study import FIGURES, RESULTS, append_jsonl, provenance  # noqa: E402
-
 import diffrax  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
+from _study import FIGURES, RESULTS, append_jsonl, provenance  # noqa: E402
 
 import heli_uq  # noqa: E402
 from heli_uq.figure import new_figure, save_figure  # noqa: E402

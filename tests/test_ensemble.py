@@ -141,6 +141,17 @@ def test_same_seed_same_draws(small_run, problem, start, tmp_path):
     assert not np.array_equal(other.samples["z"], small_run.samples["z"])
 
 
+def test_a_dimension_above_max_dim_is_reported(problem, start, tmp_path, monkeypatch):
+    from heli_uq.output.health import UNCONVERGED, check_health
+
+    monkeypatch.setattr(ensemble, "MAX_DIM", start.density.dim - 1)
+    run = run_emcee(problem, tmp_path, ensembles=1, steps=20, chunk=20, seed=3, progress=False,
+                    start=start)  # fmt: skip
+    dimension = [w for w in run.info["warnings"] if "MAX_DIM" in w]
+    assert len(dimension) == 1 and f"on {start.density.dim} coordinates" in dimension[0]
+    assert check_health({"warnings": run.info["warnings"]})["flags"] == [UNCONVERGED]
+
+
 def test_default_start_is_prepare_start(problem, start, tmp_path, monkeypatch):
     calls = []
 

@@ -10,8 +10,7 @@ import jax
 import numpy as np
 import pytest
 
-from heli_uq.calibration import sbc
-from heli_uq.calibration import SBCSettings, run_sbc, summarise
+from heli_uq.calibration import SBCSettings, run_sbc, sbc, summarise
 from heli_uq.calibration.ranks import expected_interval_coverage, rank_covered, thinned_ranks
 from heli_uq.errors import ParameterError
 from heli_uq.probability.priors import X0_ANGLE_SD

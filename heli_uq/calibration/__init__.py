@@ -7,10 +7,10 @@ Layer 8 (imports everything below it except discovery and design; only scripts u
 """
 
 from heli_uq.calibration.figures import plot_ranks as plot_ranks
+from heli_uq.calibration.ranks import summarise as summarise
 from heli_uq.calibration.sbc import SBCSettings as SBCSettings
 from heli_uq.calibration.sbc import load_replicates as load_replicates
 from heli_uq.calibration.sbc import run_replicate as run_replicate
 from heli_uq.calibration.sbc import run_sbc as run_sbc
-from heli_uq.calibration.ranks import summarise as summarise
 
 __all__ = ["SBCSettings", "run_sbc", "run_replicate", "load_replicates", "summarise", "plot_ranks"]

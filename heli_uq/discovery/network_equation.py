@@ -40,7 +40,7 @@ import pysindy as ps
 
 from heli_uq.errors import ParameterError
 from heli_uq.model.spec import with_effects
-from heli_uq.model.terms.feature_torque import FEATURES, coefficient_name
+from heli_uq.model.terms.feature_torque import FEATURES
 
 __all__ = ["recover_equation", "equation_model", "LIBRARY", "INCLUDE"]
 

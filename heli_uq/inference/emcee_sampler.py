@@ -44,7 +44,7 @@ from heli_uq.inference.nuts import SamplerRun
 from heli_uq.inference.start import Start, initial_draws, prepare_start, whitening
 from heli_uq.probability.problem import Problem
 
-__all__ = ["run_emcee", "INIT_SCALE", "TAU_FACTOR"]
+__all__ = ["run_emcee", "INIT_SCALE", "MAX_DIM", "TAU_FACTOR"]
 
 #: Initial walkers: MAP + INIT_SCALE * N(0, Laplace covariance).
 INIT_SCALE = 0.1
@@ -52,6 +52,13 @@ INIT_SCALE = 0.1
 TAU_FACTOR = 50
 #: Mean acceptance fraction below which walkers are reported as (nearly) stuck.
 MIN_ACCEPTANCE = 0.1
+#: Largest dimension (unconstrained coordinates) at which emcee is trusted; a larger one is
+#: sampled but reported in ``warnings`` (so the run's health is UNCONVERGED): use NUTS.
+#: Measured by ``studies/emcee_dimension.py`` (20 s record with a hidden yaw thrust, 2 d + 2
+#: walkers, 3000 steps): acceptance 0.32 at d = 17 (mechanistic), 0.18 at d = 25 (a
+#: 2-unit network of u), 0.05 at d = 33 (4 units), below :data:`MIN_ACCEPTANCE`; tau_max
+#: >= 112, 163, 166 steps (lower bounds: every chain was shorter than 50 tau).
+MAX_DIM = 25
 CHUNK_DIR = "chunks_emcee"
 #: Compiled batched functions kept (per underlying function of a density).
 JIT_CACHE_SIZE = 8
@@ -181,6 +188,15 @@ def _run_ensemble(density, start_info, ensemble, *, walkers, steps, chunk, seed,
     return chain, lp, accepted
 
 
+def _dimension_warnings(dim: int) -> list[str]:
+    """The warning for a posterior of more than :data:`MAX_DIM` coordinates (or none)."""
+    if dim <= MAX_DIM:
+        return []
+    return [f"emcee on {dim} coordinates, more than MAX_DIM = {MAX_DIM}: the stretch move's "
+            "acceptance and autocorrelation time degrade with the dimension "
+            "(studies/emcee_dimension.py); use NUTS"]  # fmt: skip
+
+
 def _autocorrelation(chain: np.ndarray, kept_draws: int, ensemble: int):
     """tau per coordinate, ESS and warnings of one ensemble's post-burn chain.
 
@@ -282,7 +298,7 @@ def run_emcee(problem: Problem, out_dir, *, ensembles: int = 2, walkers: int | N
                                    walkers=walkers)  # fmt: skip
     walkers = start_info["walkers"]
     per_site: dict[str, list] = {}
-    lps, acceptance, taus, ess, warnings = [], [], [], [], []
+    lps, acceptance, taus, ess, warnings = [], [], [], [], _dimension_warnings(density.dim)
     for e in range(ensembles):
         chain, lp, accepted = _run_ensemble(
             density, start_info, e, walkers=walkers, steps=steps, chunk=chunk, seed=seed,

@@ -12,14 +12,8 @@ import pytest
 
 from heli_uq.cli.main import main
 from heli_uq.data import read_record
-from heli_uq.design import (
-    DesignPrior,
-    InformationGain,
-    Rivals,
-    StaircaseBounds,
-    design,
-    search_staircase,  # fmt: skip
-)
+from heli_uq.design import (DesignPrior, InformationGain, Rivals, StaircaseBounds, design,
+                            search_staircase)  # fmt: skip
 from heli_uq.design.search import SearchBudget
 from heli_uq.design.staircase import mutate, random_staircase
 from heli_uq.errors import ParameterError

@@ -57,7 +57,7 @@ MIN_ACCEPTANCE = 0.1
 #: Measured by ``studies/emcee_dimension.py`` (20 s record with a hidden yaw thrust, 2 d + 2
 #: walkers, 3000 steps): acceptance 0.32 at d = 17 (mechanistic), 0.18 at d = 25 (a
 #: 2-unit network of u), 0.05 at d = 33 (4 units), below :data:`MIN_ACCEPTANCE`; tau_max
-#: >= 112, 163, 166 steps (lower bounds: every chain was shorter than 50 tau).
+#: ~ 112, 163, 166 steps (likely underestimated: every chain was shorter than 50 tau).
 MAX_DIM = 25
 CHUNK_DIR = "chunks_emcee"
 #: Compiled batched functions kept (per underlying function of a density).

@@ -71,7 +71,7 @@ def main(argv=None):
                 "steps_needed": TAU_FACTOR * tau_max,
                 "evaluations_needed": TAU_FACTOR * tau_max * info["walkers"],
                 "seconds_per_step": per_step, "seconds_needed": TAU_FACTOR * tau_max * per_step,
-                "trusted": args.steps // 2 >= TAU_FACTOR * tau_max}  # fmt: skip
+                "trusted": args.steps - info["burn"] >= TAU_FACTOR * tau_max}  # fmt: skip
         line["provenance"] = provenance(__file__, argv, time.perf_counter() - t0)
         append_jsonl(args.out, line)
         print(f"{name}: d = {line['dim']}, tau_max {tau_max:.0f} steps (median {line['tau_median']:.0f}), "

@@ -49,6 +49,17 @@ def provenance(script: str, argv, wall_s: float) -> dict:
             "time": time.strftime("%Y-%m-%dT%H:%M:%S"), "cpu_count": os.cpu_count()}  # fmt: skip
 
 
+def add_run_arguments(ap, name: str, *, chains: int, warmup: int, draws: int) -> None:
+    """The NUTS size (``--chains``, ``--warmup``, ``--draws``) and where a posterior study
+    keeps its runs (``--runs``, default ``runs/<name>``) and result lines (``--out``,
+    default ``results/<name>.jsonl``)."""
+    ap.add_argument("--chains", type=int, default=chains)
+    ap.add_argument("--warmup", type=int, default=warmup)
+    ap.add_argument("--draws", type=int, default=draws)
+    ap.add_argument("--runs", default=str(ROOT / "runs" / name))
+    ap.add_argument("--out", default=str(RESULTS / f"{name}.jsonl"))
+
+
 def append_jsonl(path, row: dict) -> pathlib.Path:
     """Append ``row`` as one JSON line to ``path`` (created with its directory if missing);
     numpy values are written as plain numbers and lists."""

@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _study import FIGURES, RESULTS, ROOT, append_jsonl, provenance  # noqa: E402
+from _study import FIGURES, RESULTS, add_run_arguments, append_jsonl, provenance  # noqa: E402
 
 ROWS = ("mechanistic", "effect", "u", "u,x,v", "equation")
 
@@ -68,7 +68,8 @@ def _row_metrics(idata, summary, base_scores, blocks_test, test_slice) -> tuple[
         diff, se = compare(scores, base_scores)
         out["test_score_diff"], out["test_score_se"] = float(diff), float(se)
     for key in ("rhat_max", "ess_bulk_min", "divergences", "rhat_max_network_torque",
-                "rhat_max_network_weights", "gain_trade_off", "last_layer"):  # fmt: skip
+                "rhat_max_network_weights", "gain_trade_off", "network_band_widths",
+                "last_layer"):  # fmt: skip
         if key in summary:
             out[key] = summary[key]
     out["parameters"] = len(idata.posterior.attrs["free_parameters"].split(","))
@@ -91,11 +92,7 @@ def main(argv=None):
     ap.add_argument("--nn-posterior", choices=["full", "last-layer"], default="full",
                     help="the networks' posterior: every weight (default), or the output weights "
                          "with the hidden layer trained and fixed")
-    ap.add_argument("--chains", type=int, default=4)
-    ap.add_argument("--warmup", type=int, default=500)
-    ap.add_argument("--draws", type=int, default=500)
-    ap.add_argument("--runs", default=str(ROOT / "runs" / "hybrid_posterior"))
-    ap.add_argument("--out", default=str(RESULTS / "hybrid_posterior.jsonl"))
+    add_run_arguments(ap, "hybrid_posterior", chains=4, warmup=500, draws=500)
     args = ap.parse_args(argv)
 
     import numpyro
@@ -195,7 +192,8 @@ def _write_table(lines, path: pathlib.Path) -> None:
     rows = [head]
     for ln in lines:
         tr, te = ln["windows"]["train"], ln["windows"].get("test", {})
-        diff = (f"{ln['test_score_diff']:+.0f} ({ln['test_score_se']:.0f})" if "test_score_diff" in ln else "0")
+        diff = (f"{ln['test_score_diff']:+.0f} ({ln['test_score_se']:.0f})" if "test_score_diff" in ln
+                else "0" if ln["row"] == "mechanistic" else "– (no mechanistic row in its run)")  # fmt: skip
         rhat = f"{ln.get('rhat_max', float('nan')):.3f}"
         if "rhat_max_network_torque" in ln:
             rhat += f" (weights {ln['rhat_max_network_weights']:.2f})"

@@ -213,3 +213,59 @@ def test_the_projection_removes_the_gain_network_trade_off(tmp_path):
         assert row["sd_linear"] <= PROJECTED_LINEAR * row["sd_gain"]
         assert np.isnan(row["corr"])  # undefined for a constant
     assert projected["sd_gain"] < free["sd_gain"]
+
+
+def test_the_torque_at_voltage_pairs_the_training_window_never_holds():
+    """A network of u is also stored at the span's voltage pairs outside the training window
+    (``<axis>_unseen``): exactly the set difference of the pairs, and the same torque that
+    the seen grid of a problem trained on the whole span gives at those pairs (with the
+    term's input scaling and projection frozen at the split's, so it is one function)."""
+    from heli_uq.output.network import UNSEEN, network_torques
+
+    rec, _, _ = _truth_record()
+    model = build_model([{"effect": "neural_torque", "axis": "yaw", "hidden": 2}])
+    split = make_problem(rec, (0.0, 10.0), (10.0, SECONDS), model=model, error="iid")
+    whole = make_problem(rec, (0.0, SECONDS), model=split.model, error="iid")
+    rng = np.random.default_rng(3)
+    names = [p.name for p in model.effects[0].parameters()]
+    samples = {n: rng.normal(0.0, 0.5, size=(2, 3)) for n in names}
+    samples["z"] = np.zeros((2, 3, 1))
+    got = network_torques(split, samples)
+    n = split.n_train
+    train_pairs = {tuple(p) for p in np.asarray(rec.u)[:n]}
+    test_pairs = {tuple(p) for p in np.asarray(rec.u)[n:len(split.u)]}
+    torque, points = got["yaw" + UNSEEN]
+    assert set(zip(points["u_theta"], points["u_psi"])) == test_pairs - train_pairs
+    assert len(points["u_theta"]) > 0 and torque.shape == (2, 3, len(points["u_theta"]))
+    ref, ref_points = network_torques(whole, samples)["yaw"]
+    ref_pairs = list(zip(ref_points["u_theta"], ref_points["u_psi"]))
+    columns = [ref_pairs.index(pair) for pair in zip(points["u_theta"], points["u_psi"])]
+    np.testing.assert_allclose(torque, ref[..., columns], rtol=1e-12, atol=1e-15)
+    assert "yaw" + UNSEEN not in network_torques(whole, samples)
+
+
+#: Sampling error of the ratio of two median 90 % widths over 4000 Gaussian draws.
+WIDTH_RATIO_TOL = 0.05
+
+
+def test_band_widths_compare_seen_and_unseen_pairs():
+    """Known draws: sd 0.01 N m at the seen pairs, 0.03 at the unseen: ratio 3, and the
+    median 90 % width is 2 x 1.645 sd."""
+    import xarray as xr
+
+    from heli_uq.output.network import band_widths
+
+    rng = np.random.default_rng(0)
+    seen, unseen = ("chain", "draw", "nn_point_yaw"), ("chain", "draw", "nn_point_yaw_unseen")
+    post = xr.Dataset({
+        "nn_torque_yaw": (seen, 0.01 * rng.normal(size=(2, 2000, 5))),
+        "nn_torque_yaw_unseen": (unseen, 0.03 * rng.normal(size=(2, 2000, 3))),
+    }, coords={"nn_point_yaw_u_psi": ("nn_point_yaw", np.arange(5.0)),
+               "nn_point_yaw_unseen_u_psi": ("nn_point_yaw_unseen", np.arange(3.0))})  # fmt: skip
+    widths = band_widths(az.InferenceData(posterior=post), "yaw")
+    assert widths["seen"]["n"] == 5 and widths["unseen"]["n"] == 3
+    assert widths["seen"]["median"] == pytest.approx(2 * 1.645 * 0.01, rel=WIDTH_RATIO_TOL)
+    assert widths["ratio"] == pytest.approx(3.0, rel=WIDTH_RATIO_TOL)
+    no_unseen = az.InferenceData(posterior=post.drop_vars(["nn_torque_yaw_unseen",
+                                                           "nn_point_yaw_unseen_u_psi"]))
+    assert "ratio" not in band_widths(no_unseen, "yaw")

@@ -5,7 +5,9 @@ Groups:
 * ``posterior``: the model's free parameters by name (SI), the initial state, ``sigma``,
   ``tau`` and ``rho`` per ``output``, the sampling coordinates ``z`` per ``coordinate``;
   for a hybrid model also ``nn_torque_<axis>``, the network's output torque [N m] on the
-  grid of :mod:`heli_uq.output.network` (dim ``nn_point_<axis>``, its inputs as coords);
+  grid of :mod:`heli_uq.output.network` (dim ``nn_point_<axis>``, its inputs as coords;
+  a network of the voltages also ``nn_torque_<axis>_unseen`` at the span's voltage pairs
+  the training window never holds);
 * ``sample_stats``; ``prior`` (draws of every free prior, by name);
 * ``log_likelihood``: ``y``, the pointwise log likelihood of the training window per
   ``time_block`` of ``loglik_block`` samples (sums over each block; a block of 1 is the
@@ -48,7 +50,7 @@ from heli_uq.errors import DataFormatError
 from heli_uq.io import publish
 from heli_uq.model.spec import model_from_description
 from heli_uq.model.tables import X0_NAMES
-from heli_uq.output.network import network_torques
+from heli_uq.output.network import UNSEEN, network_torques
 from heli_uq.probability.likelihood import pointwise_log_likelihood
 from heli_uq.probability.noise import ar1_noise
 from heli_uq.probability.priors import OUTPUTS
@@ -235,15 +237,17 @@ def _add_network_torques(idata: az.InferenceData, problem, samples: dict) -> Non
     """``nn_torque_<axis>`` of every neural term into the posterior (module docstring)."""
     import xarray as xr
 
-    for axis, (torque, points) in network_torques(problem, samples).items():
-        dim = f"nn_point_{axis}"
+    for key, (torque, points) in network_torques(problem, samples).items():
+        dim = f"nn_point_{key}"
+        axis, unseen = key.removesuffix(UNSEEN), key.endswith(UNSEEN)
+        where = "voltage pairs the training window never holds" if unseen else "training window's inputs"
         coords = {dim: np.arange(torque.shape[-1]),
                   **{f"{dim}_{k}": (dim, np.asarray(v)) for k, v in points.items()}}  # fmt: skip
-        idata.posterior[f"nn_torque_{axis}"] = xr.DataArray(
+        idata.posterior[f"nn_torque_{key}"] = xr.DataArray(
             torque, dims=("chain", "draw", dim),
             coords={"chain": idata.posterior["chain"], "draw": idata.posterior["draw"], **coords},
-            attrs={"units": "N m", "long_name": f"network torque on {axis} at the training "
-                                                 f"window's inputs ({', '.join(points)})"})  # fmt: skip
+            attrs={"units": "N m", "long_name": f"network torque on {axis} at the {where} "
+                                                 f"({', '.join(points)})"})  # fmt: skip
 
 
 #: NetCDF encoding of every numeric variable: zlib after the byte-shuffle filter, which

@@ -6,7 +6,9 @@ weights say nothing about convergence.  The quantity that matters is the torque 
 network adds.  :func:`network_points` fixes where it is reported:
 
 * ``inputs="u"``: at the training window's distinct voltage pairs (the only inputs the
-  record constrains; at most :data:`MAX_POINTS`, the most-held first);
+  record constrains; at most :data:`MAX_POINTS`, the most-held first); and, as a second
+  grid ``<axis>_unseen``, at the span's pairs the training window never holds (a test
+  window's new pairs: where the band must widen, :func:`band_widths`);
 * ``inputs="u,x,v"``: at :data:`MAX_POINTS` evenly spaced samples of the training
   window (measured angles, rates by finite differences, voltages).
 
@@ -14,7 +16,8 @@ network adds.  :func:`network_points` fixes where it is reported:
 projection applied (the torque the term adds to the equations of motion, [N m]).
 :mod:`heli_uq.output.inference_data` stores it in the posterior as
 ``nn_torque_<axis>`` with dims ``(chain, draw, nn_point_<axis>)`` and the inputs as
-coordinates of that dim; :mod:`heli_uq.output.diagnostics` judges convergence on it and
+coordinates of that dim (the unseen pairs as ``nn_torque_<axis>_unseen`` on
+``nn_point_<axis>_unseen``); :mod:`heli_uq.output.diagnostics` judges convergence on it and
 on the physical parameters, and reports the weights' R-hat separately.
 
 Layer 7, with the rest of :mod:`heli_uq.output` (reads the model and the problem).
@@ -34,7 +37,8 @@ from heli_uq.model.terms.rigid_body import MECHANICS_PARAMETERS, pitch_inertia, 
 from heli_uq.probability.priors import fixed_values
 
 __all__ = ["network_points", "network_torques", "network_terms", "is_network_weight",
-           "gain_trade_off", "network_pairs", "MAX_POINTS", "WEIGHT_PREFIXES"]  # fmt: skip
+           "gain_trade_off", "network_pairs", "band_widths", "MAX_POINTS", "WEIGHT_PREFIXES",
+           "UNSEEN"]  # fmt: skip
 
 #: Most grid points per network.
 MAX_POINTS = 64
@@ -43,6 +47,8 @@ MAX_POINTS = 64
 FLAT = 1e-9
 #: Name prefixes of network weights (see :mod:`heli_uq.model.terms.neural_torque`).
 WEIGHT_PREFIXES = ("nn_W_", "nn_b_", "nn_w_")
+#: Suffix of the grid of voltage pairs the training window never holds.
+UNSEEN = "_unseen"
 
 
 def is_network_weight(name: str) -> bool:
@@ -55,15 +61,33 @@ def network_terms(model) -> list[NeuralTorque]:
     return [t for t in model.torques if isinstance(t, NeuralTorque)]
 
 
-def network_points(problem, term: NeuralTorque, max_points: int = MAX_POINTS) -> dict[str, np.ndarray]:
+def _most_held(u: np.ndarray, max_points: int) -> np.ndarray:
+    """The distinct rows of ``u`` (N, 2), at most ``max_points`` of the most held, sorted."""
+    if len(u) == 0:
+        return np.zeros((0, 2))
+    pairs, counts = np.unique(u, axis=0, return_counts=True)
+    return pairs[np.sort(np.argsort(-counts, kind="stable")[:max_points])]
+
+
+def network_points(problem, term: NeuralTorque, max_points: int = MAX_POINTS, *,
+                   unseen: bool = False) -> dict[str, np.ndarray]:  # fmt: skip
     """Grid of ``term``'s inputs (module docstring): ``{input name: values (k,)}``, the
-    voltages [V], angles [rad] and rates [rad/s] named as in ``term.input_names``."""
+    voltages [V], angles [rad] and rates [rad/s] named as in ``term.input_names``.
+
+    ``unseen=True`` (a network of ``u`` only): the voltage pairs of the problem's span that
+    the training window never holds (k may be 0)."""
     n = problem.n_train
     u = np.asarray(problem.u[:n], dtype=float)
     if term.inputs == "u":
-        pairs, counts = np.unique(u, axis=0, return_counts=True)
-        keep = np.sort(np.argsort(-counts, kind="stable")[:max_points])
-        return {"u_theta": pairs[keep, 0], "u_psi": pairs[keep, 1]}
+        if unseen:
+            rest = np.asarray(problem.u[n:], dtype=float)
+            new = ~np.any(np.all(rest[:, None, :] == _most_held(u, len(u))[None], axis=2), axis=1)
+            pairs = _most_held(rest[new], max_points)
+        else:
+            pairs = _most_held(u, max_points)
+        return {"u_theta": pairs[:, 0], "u_psi": pairs[:, 1]}
+    if unseen:
+        raise ValueError(f"unseen grid: defined for a network of u only, not of {term.inputs}")
     y = np.asarray(problem.y[:n], dtype=float)
     rates = np.gradient(y, float(problem.dt), axis=0) if n > 1 else np.zeros_like(y)
     idx = np.unique(np.linspace(0, n - 1, min(n, max_points)).round().astype(int))
@@ -100,29 +124,39 @@ def network_torques(problem, samples: dict, max_points: int = MAX_POINTS) -> dic
     -------
     dict
         ``{axis: (torque (chain, draw, k) [N m], points)}`` per neural term, ``points``
-        as :func:`network_points`; empty for a model without neural terms.
+        as :func:`network_points`; for a network of ``u`` whose span holds voltage pairs
+        the training window does not, also ``{axis + UNSEEN: ...}`` at those pairs;
+        empty for a model without neural terms.
     """
     out = {}
     for term in network_terms(problem.model):
-        points = network_points(problem, term, max_points)
-        names = [p.name for p in term.parameters()]
-        shape = None
-        flat = {}
-        for name in names:
-            prior = problem.priors.params[name]
-            if prior.free:
-                value = np.asarray(samples[name], dtype=float)
-                shape = value.shape
-                flat[name] = value.reshape(-1)
-        if shape is None:  # every weight fixed: one torque, repeated
-            shape = np.asarray(samples["z"]).shape[:2]
-        for name in names:
-            if name not in flat:
-                flat[name] = np.full(int(np.prod(shape)), problem.priors.params[name].a)
-        batched = jax.jit(jax.vmap(lambda p, t=term, q=points: _torque_at(t, p, q)))
-        torque = np.asarray(batched({k: jnp.asarray(v) for k, v in flat.items()}))
-        out[term.axis] = (torque.reshape(shape + (torque.shape[-1],)), points)
+        grids = {term.axis: network_points(problem, term, max_points)}
+        if term.inputs == "u":
+            grids[term.axis + UNSEEN] = network_points(problem, term, max_points, unseen=True)
+        out.update({key: (_draw_torques(problem, term, samples, points), points)
+                    for key, points in grids.items() if len(points["u_theta"])})  # fmt: skip
     return out
+
+
+def _draw_torques(problem, term: NeuralTorque, samples: dict, points: dict) -> np.ndarray:
+    """Every draw's torque of ``term`` at ``points``, shape (chain, draw, k) [N m]."""
+    names = [p.name for p in term.parameters()]
+    shape = None
+    flat = {}
+    for name in names:
+        prior = problem.priors.params[name]
+        if prior.free:
+            value = np.asarray(samples[name], dtype=float)
+            shape = value.shape
+            flat[name] = value.reshape(-1)
+    if shape is None:  # every weight fixed: one torque, repeated
+        shape = np.asarray(samples["z"]).shape[:2]
+    for name in names:
+        if name not in flat:
+            flat[name] = np.full(int(np.prod(shape)), problem.priors.params[name].a)
+    batched = jax.jit(jax.vmap(lambda p, t=term, q=points: _torque_at(t, p, q)))
+    torque = np.asarray(batched({k: jnp.asarray(v) for k, v in flat.items()}))
+    return torque.reshape(shape + (torque.shape[-1],))
 
 
 def network_pairs(idata, axis: str) -> tuple[np.ndarray, np.ndarray]:
@@ -132,6 +166,35 @@ def network_pairs(idata, axis: str) -> tuple[np.ndarray, np.ndarray]:
     pairs = np.stack([np.asarray(post[f"nn_point_{axis}_{q}"]) for q in ("u_theta", "u_psi")], axis=1)
     held = np.asarray(cd["u"])[np.asarray(cd["train_mask"], dtype=bool)]
     return pairs, np.array([np.all(held == pair, axis=1).sum() for pair in pairs], dtype=float)
+
+
+def band_widths(idata, axis: str = "yaw", level: float = 0.9) -> dict:
+    """Width of the network torque's central ``level`` band at the training window's
+    voltage pairs and at the pairs it never holds (``nn_torque_<axis>_unseen``).
+
+    A posterior that knows what it does not know widens where the data say nothing: a
+    ``ratio`` (median unseen width over median seen width) near 1 means the band at a new
+    voltage pair is as narrow as at a pair the record held for seconds.
+
+    Returns
+    -------
+    dict
+        ``{"seen": {"n", "median", "max"}, "unseen": {...}, "ratio"}`` with widths [N m];
+        empty without a stored network of ``u`` on ``axis``, ``unseen`` and ``ratio``
+        absent when every pair of the span is in the training window.
+    """
+    post = idata.posterior
+    out = {}
+    for key, var in (("seen", f"nn_torque_{axis}"), ("unseen", f"nn_torque_{axis}{UNSEEN}")):
+        if var not in post or f"nn_point_{axis}{UNSEEN if key == 'unseen' else ''}_u_psi" not in post.coords:
+            continue
+        torque = np.asarray(post[var]).reshape(-1, post[var].shape[-1])
+        lo, hi = np.quantile(torque, [(1 - level) / 2, (1 + level) / 2], axis=0)
+        width = hi - lo
+        out[key] = {"n": int(torque.shape[1]), "median": float(np.median(width)), "max": float(np.max(width))}
+    if "seen" in out and "unseen" in out and out["seen"]["median"] > 0:
+        out["ratio"] = out["unseen"]["median"] / out["seen"]["median"]
+    return out
 
 
 def gain_trade_off(idata, axis: str = "yaw") -> dict:

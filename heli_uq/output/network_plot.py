@@ -1,7 +1,8 @@
 """Figure of a hybrid posterior's network torque: median and 90 % interval per grid point.
 
 For a network of the voltages the grid points are the training window's voltage pairs
-(x axis: ``u_psi`` [V], colour: ``u_theta`` [V]); for a network of states they are
+(x axis: ``u_psi`` [V], colour: ``u_theta`` [V]), and, as open squares with red bars, the
+pairs of the span it never holds (a test window's); for a network of states they are
 samples of the training window (x axis: time [s]).  Built without :mod:`matplotlib.pyplot`
 (see :mod:`heli_uq.output.plots`).
 """
@@ -12,6 +13,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from heli_uq.figure import new_figure, save_figure
+from heli_uq.output.network import UNSEEN
 
 __all__ = ["plot_network_torque"]
 
@@ -46,9 +48,11 @@ def plot_network_torque(idata, axis: str, path=None, *, truth=None) -> Figure:
         x, colour = np.asarray(post[f"{dim}_u_psi"]), np.asarray(post[f"{dim}_u_theta"])
         ax.errorbar(x, med, yerr=[med - lo, hi - med], fmt="none", ecolor="0.6", elinewidth=1,
                     capsize=2, label="90 % interval", zorder=1)  # fmt: skip
-        sc = ax.scatter(x, med, c=colour, cmap="viridis", s=18, zorder=2, label="posterior median")
+        sc = ax.scatter(x, med, c=colour, cmap="viridis", s=18, zorder=2,
+                        label="posterior median (training pairs)")  # fmt: skip
         fig.colorbar(sc, ax=ax, label="u_theta [V]")
-        ax.set_xlabel("u_psi [V] (the training window's voltage pairs)")
+        _unseen_pairs(ax, post, axis, sc)
+        ax.set_xlabel("u_psi [V] (voltage pairs of the record)")
     if truth is not None:
         ax.scatter(x, truth, marker="x", color="k", s=22, zorder=3, label="truth")
     ax.axhline(0.0, color="0.3", lw=0.6)
@@ -59,3 +63,20 @@ def plot_network_torque(idata, axis: str, path=None, *, truth=None) -> Figure:
     if path is not None:
         save_figure(fig, path)
     return fig
+
+
+def _unseen_pairs(ax, post, axis: str, colours) -> None:
+    """The torque at the voltage pairs the training window never holds: open squares,
+    red interval bars (absent when the span has none)."""
+    var, dim = f"nn_torque_{axis}{UNSEEN}", f"nn_point_{axis}{UNSEEN}"
+    if var not in post:
+        return
+    torque = np.asarray(post[var]).reshape(-1, post[var].shape[-1])
+    lo, med, hi = np.quantile(torque, [0.05, 0.5, 0.95], axis=0)
+    x = np.asarray(post[f"{dim}_u_psi"])
+    edges = colours.cmap(colours.norm(np.asarray(post[f"{dim}_u_theta"])))
+    where = "pairs not in the training window"
+    ax.errorbar(x, med, yerr=[med - lo, hi - med], fmt="none", ecolor="C3", elinewidth=1,
+                capsize=2, label=f"90 % interval ({where})", zorder=1)  # fmt: skip
+    ax.scatter(x, med, facecolors="none", edgecolors=edges, marker="s", s=30, zorder=2,
+               label=f"posterior median ({where})")  # fmt: skip

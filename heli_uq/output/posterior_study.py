@@ -29,7 +29,7 @@ from heli_uq.output.diagnostics import summarize, summary_table
 from heli_uq.output.health import check_health
 from heli_uq.output.inference_data import save_netcdf, to_inference_data
 from heli_uq.output.last_layer import NETWORK_POSTERIORS, last_layer_setup
-from heli_uq.output.network import gain_trade_off, network_terms
+from heli_uq.output.network import band_widths, gain_trade_off, network_terms
 from heli_uq.output.plots import plot_bands, save_figure
 from heli_uq.probability.priors import PriorSet
 from heli_uq.probability.problem import make_problem
@@ -187,9 +187,10 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
                       RuntimeWarning, stacklevel=2)  # fmt: skip
     if last_layer is not None:
         summary["last_layer"] = last_layer
-    trade = {t.axis: gain_trade_off(idata, t.axis) for t in network_terms(problem.model) if t.inputs == "u"}
-    if trade:
-        summary["gain_trade_off"] = trade
+    of_u = [t.axis for t in network_terms(problem.model) if t.inputs == "u"]
+    if of_u:
+        summary["gain_trade_off"] = {axis: gain_trade_off(idata, axis) for axis in of_u}
+        summary["network_band_widths"] = {axis: band_widths(idata, axis) for axis in of_u}
     summary["health"] = check_health(summary, solver_tol=SOLVER_TOL)
     summary["wall_s"] = time.perf_counter() - t0
     stage("writing posterior.nc, summary.csv, summary.json, bands.png")

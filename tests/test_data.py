@@ -126,6 +126,19 @@ def test_read_accepts_format_variations(tmp_path, bom, eol, header):
     np.testing.assert_allclose(exp.t, [0.0, 0.01, 0.02, 0.03], rtol=0, atol=TIME_ATOL)
 
 
+def test_read_accepts_a_sample_time_repeated_with_rounding(tmp_path):
+    """A writer that prints dt on every row (e.g. as differences of float times) may round
+    it; within DT_REL_TOL it is the same sample time, beyond it the row is refused."""
+    from heli_uq.data.record import DT_REL_TOL
+
+    rows = [r.rstrip(",") + ("" if i == 0 else f",{0.01 * (1 + 0.1 * DT_REL_TOL * (-1) ** i)!r}")
+            for i, r in enumerate(GOOD_ROWS)]
+    assert read_record(write(tmp_path / "r.csv", PLAIN_HEADER, rows)).dt == 0.01
+    rows[2] = rows[2].rsplit(",", 1)[0] + f",{0.01 * (1 + 10 * DT_REL_TOL)!r}"
+    with pytest.raises(DataFormatError, match="line 4"):
+        read_record(write(tmp_path / "r2.csv", PLAIN_HEADER, rows))
+
+
 def test_read_ignores_trailing_empty_line(tmp_path):
     path = write(tmp_path / "r.csv", PLAIN_HEADER, GOOD_ROWS + [""])
     assert read_record(path).n == len(GOOD_ROWS)

@@ -28,6 +28,9 @@ from heli_uq.io import atomic_write_bytes
 
 __all__ = ["COLUMNS", "HEADER", "Experiment", "parse_window", "read_record"]
 
+#: Relative difference at which a repeated sample time counts as a different one (a
+#: writer that prints dt on every row may round it).
+DT_REL_TOL = 1e-9
 #: Short column names, used in error messages and accepted as a plain header.
 COLUMNS = ("u_theta", "u_psi", "theta", "psi", "dt")
 #: The published header, written verbatim by :meth:`Experiment.to_csv`.
@@ -261,7 +264,8 @@ def read_record(path: str | os.PathLike) -> Experiment:
     ----------
     path : str or path-like
         CSV file with a header (published or plain ``u_theta,u_psi,theta,psi,dt``) and
-        at least 2 data rows; the sample time is in the first data row.
+        at least 2 data rows; the sample time is in the first data row, and later rows
+        leave its cell empty or repeat it (to :data:`DT_REL_TOL`).
 
     Returns
     -------
@@ -326,7 +330,7 @@ def read_record(path: str | os.PathLike) -> Experiment:
                 if x <= 0:
                     raise fail(line, col, f"expected a sample time > 0, found {cell!r}")
                 dt = x
-            elif x != dt:
+            elif not math.isclose(x, dt, rel_tol=DT_REL_TOL):
                 raise fail(line, col, f"sample time {cell!r} differs from {dt!r} in line "
                            f"{rows[1][0]}; expected an empty cell")
     n = values.shape[0]

@@ -2,13 +2,16 @@
 
 A synthetic record with a known input nonlinearity on yaw (a quadratic thrust
 ``k_q u_psi |u_psi|``, hidden from the model) under random voltage steps (many distinct
-pairs), split so that the test window holds pairs the training window does not.  For
-each network posterior (``--nn-posterior full`` samples every weight, ``last-layer``
+pairs), split so that the test window holds pairs the training window does not.  The mass ``m`` is
+fixed at the truth; the angles still fix a torque only relative to the yaw inertia, so
+torques are compared as angular accelerations (each draw's over its ``M22``,
+:func:`heli_uq.output.network.axis_inertia`; the truth's over the true ``M22``).  For each
+network posterior (``--nn-posterior full`` samples every weight, ``last-layer``
 fixes the trained hidden layer), FNN(u) on yaw:
 
-* the median width of the network torque's central 90 % band at the training pairs and
-  at the unseen pairs, and their ratio (:func:`heli_uq.output.network.band_widths`);
-* the fraction of pairs, seen and unseen, whose true torque lies inside that band.  The
+* the median width of the central 90 % band of the network's acceleration at the training
+  pairs and at the unseen pairs, and their ratio (:func:`heli_uq.output.network.band_widths`);
+* the fraction of pairs, seen and unseen, whose true acceleration lies inside that band.  The
   truth is the hidden thrust with its part along the gains removed (the weighted
   least-squares fit on ``(u_theta, u_psi)`` over the training pairs, the network's
   projection), so it is what the projected network can hold;
@@ -40,9 +43,9 @@ K_Q = 0.05
 TRAIN_FRACTION = 0.6
 
 
-def _inside(post, var: str, truth: np.ndarray) -> float:
-    torque = np.asarray(post[var]).reshape(-1, post[var].shape[-1])
-    lo, hi = np.quantile(torque, [0.05, 0.95], axis=0)
+def _inside(accel: np.ndarray, truth: np.ndarray) -> float:
+    """Fraction of grid points whose ``truth`` (k,) lies in the central 90 % of ``accel`` (S, k)."""
+    lo, hi = np.quantile(accel, [0.05, 0.95], axis=0)
     return float(np.mean((lo <= truth) & (truth <= hi)))
 
 
@@ -73,9 +76,12 @@ def main(argv=None):
 
     numpyro.set_host_device_count(args.chains)
     from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model
+    from heli_uq.model.prior import Prior
+    from heli_uq.model.terms.rigid_body import yaw_inertia
     from heli_uq.output import sample_posterior
-    from heli_uq.output.network import UNSEEN, band_widths
+    from heli_uq.output.network import UNSEEN, axis_inertia, band_widths
     from heli_uq.output.network_plot import plot_network_torque
+    from heli_uq.probability import PriorSet
     from heli_uq.simulation import synthetic_experiment
 
     truth_model = build_model([{"effect": "quadratic_thrust", "axis": "yaw"}])
@@ -87,23 +93,27 @@ def main(argv=None):
     n_train = int(np.searchsorted(np.asarray(record.t), cut - 1e-9))
     term, params = truth_model.effects[0], truth_model.complete(values)
     model = build_model([{"effect": "neural_torque", "axis": "yaw", "inputs": "u", "hidden": args.hidden}])
+    priors = PriorSet.default(model).updated(model, {"m": Prior("fixed", values["m"])})
     for posterior in args.posteriors:
         t0 = time.perf_counter()
         print(f"{posterior}: NUTS {args.chains} x ({args.warmup} + {args.draws})", flush=True)
         run_dir = pathlib.Path(args.runs) / posterior
-        idata, summary = sample_posterior(record, run_dir, model=model, train=train,
+        idata, summary = sample_posterior(record, run_dir, model=model, train=train, priors=priors,
                                           test=test, error="iid", network_posterior=posterior,
                                           chains=args.chains, warmup=args.warmup, draws=args.draws,
                                           progress=False)  # fmt: skip
         post = idata.posterior
+        inertia = axis_inertia(idata, "yaw")[:, None]
+        true_inertia = float(yaw_inertia(values, float(np.median(np.asarray(record.y)[:n_train, 0]))))
         inside = {}
-        for key in ("seen", "unseen"):
-            dim = f"nn_point_yaw{UNSEEN if key == 'unseen' else ''}"
+        for key, suffix in (("seen", ""), ("unseen", UNSEEN)):
+            dim = f"nn_point_yaw{suffix}"
             if f"{dim}_u_psi" not in post.coords:
                 continue
             pairs = np.stack([np.asarray(post[f"{dim}_u_theta"]), np.asarray(post[f"{dim}_u_psi"])], axis=1)
-            truth = _projected_truth(term, params, pairs, np.asarray(record.u)[:n_train])
-            inside[key] = _inside(post, f"nn_torque_yaw{UNSEEN if key == 'unseen' else ''}", truth)
+            truth = _projected_truth(term, params, pairs, np.asarray(record.u)[:n_train]) / true_inertia
+            accel = np.asarray(post[f"nn_torque_yaw{suffix}"]).reshape(-1, len(pairs)) / inertia
+            inside[key] = _inside(accel, truth)
         plot_network_torque(idata, "yaw", FIGURES / f"hybrid_unseen_{posterior}.png")
         te = summary["windows"]["test"]
         line = {"posterior": posterior, "seconds_record": args.seconds, "train": list(train),

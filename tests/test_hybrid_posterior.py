@@ -249,23 +249,35 @@ WIDTH_RATIO_TOL = 0.05
 
 
 def test_band_widths_compare_seen_and_unseen_pairs():
-    """Known draws: sd 0.01 N m at the seen pairs, 0.03 at the unseen: ratio 3, and the
-    median 90 % width is 2 x 1.645 sd."""
+    """Known draws of the network's angular acceleration, sd 0.01 rad/s^2 at the seen
+    pairs and 0.03 at the unseen, stored as torques of draws whose yaw inertia varies
+    (J_s over a factor of e): the widths are those of the acceleration (median 90 % width
+    2 x 1.645 sd, ratio 3), not of the torque, which carries the unidentified inertia."""
     import xarray as xr
 
+    from heli_uq.model.terms.rigid_body import yaw_inertia
     from heli_uq.output.network import band_widths
 
     rng = np.random.default_rng(0)
+    shape = (2, 2000)
+    j_s = RIG_FIT["J_s"] * np.exp(rng.normal(0.0, 1.0, size=shape))
+    pitch = np.full(10, -0.5)
+    inertia = np.asarray(yaw_inertia({**RIG_FIT, "J_s": j_s}, float(np.median(pitch))))[..., None]
     seen, unseen = ("chain", "draw", "nn_point_yaw"), ("chain", "draw", "nn_point_yaw_unseen")
     post = xr.Dataset({
-        "nn_torque_yaw": (seen, 0.01 * rng.normal(size=(2, 2000, 5))),
-        "nn_torque_yaw_unseen": (unseen, 0.03 * rng.normal(size=(2, 2000, 3))),
+        "J_s": (("chain", "draw"), j_s),
+        "nn_torque_yaw": (seen, 0.01 * rng.normal(size=shape + (5,)) * inertia),
+        "nn_torque_yaw_unseen": (unseen, 0.03 * rng.normal(size=shape + (3,)) * inertia),
     }, coords={"nn_point_yaw_u_psi": ("nn_point_yaw", np.arange(5.0)),
-               "nn_point_yaw_unseen_u_psi": ("nn_point_yaw_unseen", np.arange(3.0))})  # fmt: skip
-    widths = band_widths(az.InferenceData(posterior=post), "yaw")
+               "nn_point_yaw_unseen_u_psi": ("nn_point_yaw_unseen", np.arange(3.0))},
+       attrs={"priors": json.dumps({k: RIG_FIT[k] for k in ("r_c", "h", "m", "J_bc", "g")})})  # fmt: skip
+    constant = xr.Dataset({"y_obs": (("time", "output"), np.column_stack([pitch, pitch])),
+                           "train_mask": ("time", np.ones(10, bool))})  # fmt: skip
+    widths = band_widths(az.InferenceData(posterior=post, constant_data=constant), "yaw")
     assert widths["seen"]["n"] == 5 and widths["unseen"]["n"] == 3
     assert widths["seen"]["median"] == pytest.approx(2 * 1.645 * 0.01, rel=WIDTH_RATIO_TOL)
     assert widths["ratio"] == pytest.approx(3.0, rel=WIDTH_RATIO_TOL)
     no_unseen = az.InferenceData(posterior=post.drop_vars(["nn_torque_yaw_unseen",
-                                                           "nn_point_yaw_unseen_u_psi"]))
+                                                           "nn_point_yaw_unseen_u_psi"]),
+                                 constant_data=constant)  # fmt: skip
     assert "ratio" not in band_widths(no_unseen, "yaw")

@@ -37,8 +37,8 @@ from heli_uq.model.terms.rigid_body import MECHANICS_PARAMETERS, pitch_inertia, 
 from heli_uq.probability.priors import fixed_values
 
 __all__ = ["network_points", "network_torques", "network_terms", "is_network_weight",
-           "gain_trade_off", "network_pairs", "band_widths", "MAX_POINTS", "WEIGHT_PREFIXES",
-           "UNSEEN"]  # fmt: skip
+           "gain_trade_off", "network_pairs", "band_widths", "axis_inertia", "MAX_POINTS",
+           "WEIGHT_PREFIXES", "UNSEEN"]  # fmt: skip
 
 #: Most grid points per network.
 MAX_POINTS = 64
@@ -168,9 +168,38 @@ def network_pairs(idata, axis: str) -> tuple[np.ndarray, np.ndarray]:
     return pairs, np.array([np.all(held == pair, axis=1).sum() for pair in pairs], dtype=float)
 
 
+def _draws_of(post, fixed: dict, n: int):
+    """``var -> (n,)``: a sampled parameter's draws, or a fixed one's value repeated."""
+
+    def flat(var):
+        if var in post:
+            return np.asarray(post[var], dtype=float).reshape(-1)
+        return np.full(n, fixed[var])
+
+    return flat
+
+
+def axis_inertia(idata, axis: str) -> np.ndarray:
+    """The inertia of ``axis`` per posterior draw, shape (S,) [kg m^2]: ``M11``, or ``M22``
+    at the training window's median pitch.
+
+    The angles fix torques only relative to it (every torque and inertia can be scaled by
+    one factor; the yaw torques and ``M22`` nearly so by ``J_s`` alone, measured: with ``m``
+    fixed, a 40 s record left ``M22`` uncertain by 15 %), so a torque divided by it, an
+    angular acceleration [rad/s^2], is what a posterior identifies."""
+    post = idata.posterior
+    fixed = fixed_values(json.loads(post.attrs.get("priors", "{}")))
+    flat = _draws_of(post, fixed, post.sizes["chain"] * post.sizes["draw"])
+    body = {par.name: flat(par.name) for par in MECHANICS_PARAMETERS if par.name in post or par.name in fixed}
+    cd = idata.constant_data
+    theta_ref = float(np.median(np.asarray(cd["y_obs"])[np.asarray(cd["train_mask"], dtype=bool), 0]))
+    return np.asarray(pitch_inertia(body) if axis == "pitch" else yaw_inertia(body, theta_ref))
+
+
 def band_widths(idata, axis: str = "yaw", level: float = 0.9) -> dict:
-    """Width of the network torque's central ``level`` band at the training window's
-    voltage pairs and at the pairs it never holds (``nn_torque_<axis>_unseen``).
+    """Width of the central ``level`` band of the network's angular acceleration (its
+    torque over the axis inertia of each draw, :func:`axis_inertia`) at the training
+    window's voltage pairs and at the pairs it never holds (``nn_torque_<axis>_unseen``).
 
     A posterior that knows what it does not know widens where the data say nothing: a
     ``ratio`` (median unseen width over median seen width) near 1 means the band at a new
@@ -179,19 +208,19 @@ def band_widths(idata, axis: str = "yaw", level: float = 0.9) -> dict:
     Returns
     -------
     dict
-        ``{"seen": {"n", "median", "max"}, "unseen": {...}, "ratio"}`` with widths [N m];
-        empty without a stored network of ``u`` on ``axis``, ``unseen`` and ``ratio``
-        absent when every pair of the span is in the training window.
+        ``{"seen": {"n", "median", "max"}, "unseen": {...}, "ratio"}`` with widths
+        [rad/s^2]; empty without a stored network of ``u`` on ``axis``, ``unseen`` and
+        ``ratio`` absent when every pair of the span is in the training window.
     """
     post = idata.posterior
     out = {}
     for key, var in (("seen", f"nn_torque_{axis}"), ("unseen", f"nn_torque_{axis}{UNSEEN}")):
         if var not in post or f"nn_point_{axis}{UNSEEN if key == 'unseen' else ''}_u_psi" not in post.coords:
             continue
-        torque = np.asarray(post[var]).reshape(-1, post[var].shape[-1])
-        lo, hi = np.quantile(torque, [(1 - level) / 2, (1 + level) / 2], axis=0)
+        accel = np.asarray(post[var]).reshape(-1, post[var].shape[-1]) / axis_inertia(idata, axis)[:, None]
+        lo, hi = np.quantile(accel, [(1 - level) / 2, (1 + level) / 2], axis=0)
         width = hi - lo
-        out[key] = {"n": int(torque.shape[1]), "median": float(np.median(width)), "max": float(np.max(width))}
+        out[key] = {"n": int(accel.shape[1]), "median": float(np.median(width)), "max": float(np.max(width))}
     if "seen" in out and "unseen" in out and out["seen"]["median"] > 0:
         out["ratio"] = out["unseen"]["median"] / out["seen"]["median"]
     return out
@@ -235,16 +264,8 @@ def gain_trade_off(idata, axis: str = "yaw") -> dict:
     torque = np.asarray(post[name]).reshape(-1, len(pairs))
     b = np.linalg.lstsq(root_w[:, None] * pairs, (root_w * torque).T, rcond=None)[0].T  # (S, 2)
     fixed = fixed_values(json.loads(post.attrs.get("priors", "{}")))
-
-    def flat(var):  # a sampled parameter's draws, or a fixed one's value
-        if var in post:
-            return np.asarray(post[var], dtype=float).reshape(-1)
-        return np.full(len(torque), fixed[var])
-
-    body = {par.name: flat(par.name) for par in MECHANICS_PARAMETERS if par.name in post or par.name in fixed}
-    cd = idata.constant_data
-    theta_ref = float(np.median(np.asarray(cd["y_obs"])[np.asarray(cd["train_mask"], dtype=bool), 0]))
-    inertia = np.asarray(pitch_inertia(body) if axis == "pitch" else yaw_inertia(body, theta_ref))
+    flat = _draws_of(post, fixed, len(torque))
+    inertia = axis_inertia(idata, axis)
     out = {}
     for par in LINEAR_TORQUE_PARAMETERS:
         if par.axis != axis or par.input is None or not (par.name in post or par.name in fixed):

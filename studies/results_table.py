@@ -114,6 +114,8 @@ def results_table() -> str:
     rows.append(_summary_row("mechanistic, NUTS on 0–91 s, test 91–131 s (AR(1))",
                              "nuts_ar1_train0-91_test91-131.summary.json"))
     rows += _hybrid_rows()
+    rows.append(_summary_row("+ FNN(u), last-layer NUTS on the whole record (iid, 4 chains)",
+                             "nuts_iid_fnn_u_last_layer_full.summary.json"))
     rows.append(_discovery_row())
     notes = []
     sbc = RESULTS / "sbc_v2" / "summary.json"

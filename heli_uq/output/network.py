@@ -213,11 +213,16 @@ def band_widths(idata, axis: str = "yaw", level: float = 0.9) -> dict:
         ``ratio`` absent when every pair of the span is in the training window.
     """
     post = idata.posterior
+    dim = f"nn_point_{axis}"
+    if f"{dim}_u_psi" not in post.coords or f"{dim}_time" in post.coords:  # no network of u only
+        return {}
+    inertia = axis_inertia(idata, axis)[:, None]
     out = {}
-    for key, var in (("seen", f"nn_torque_{axis}"), ("unseen", f"nn_torque_{axis}{UNSEEN}")):
-        if var not in post or f"nn_point_{axis}{UNSEEN if key == 'unseen' else ''}_u_psi" not in post.coords:
+    for key, suffix in (("seen", ""), ("unseen", UNSEEN)):
+        var = f"nn_torque_{axis}{suffix}"
+        if var not in post:
             continue
-        accel = np.asarray(post[var]).reshape(-1, post[var].shape[-1]) / axis_inertia(idata, axis)[:, None]
+        accel = np.asarray(post[var]).reshape(-1, post[var].shape[-1]) / inertia
         lo, hi = np.quantile(accel, [(1 - level) / 2, (1 + level) / 2], axis=0)
         width = hi - lo
         out[key] = {"n": int(accel.shape[1]), "median": float(np.median(width)), "max": float(np.max(width))}

@@ -18,7 +18,9 @@ error (:mod:`heli_uq.discovery.score`), the number of sampled parameters, R-hat 
 parameters and network torque; the raw weights' separately) and the wall time.  One JSON
 line per row goes to ``results/hybrid_posterior.jsonl``; the table to
 ``results/hybrid_posterior.md``; the posteriors to ``--runs`` (git ignores them); the
-FNN(u) bands and network torque to ``figures/``.
+FNN(u) bands and network torque to ``figures/``.  A network's posterior over every weight
+(``--nn-posterior full``) is labelled ``, every weight`` and kept in its own run directory
+and figure, beside the last-layer ones.
 
 Usage: ``python studies/hybrid_posterior.py [--train 0:91 --test 91:131] [--rows ...]``.
 """
@@ -139,8 +141,12 @@ def main(argv=None):
             continue
         else:
             label, model = models[row]
+        # every weight sampled: its own label, run and figure (the stored rows are last-layer ones)
+        every = "_every_weight" if args.nn_posterior == "full" and row in ("u", "u,x,v") else ""
+        label += ", every weight" if every else ""
         print(f"{label}: {args.sampler} ({args.chains} x ({args.warmup} + {args.draws}))", flush=True)
-        run_dir = runs / (row.replace(",", "") + ("" if row != "u" or args.project == "u" else f"_{args.project}"))
+        run_dir = runs / (row.replace(",", "") + ("" if row != "u" or args.project == "u" else f"_{args.project}")
+                          + every)  # fmt: skip
         idata, summary = sample_posterior(record, run_dir, model=model, train=train,
                                           test=test, error="iid", sampler=args.sampler,
                                           network_posterior=args.nn_posterior,
@@ -151,7 +157,7 @@ def main(argv=None):
             base_scores = scores
         if row == "u":
             fnn_u = idata
-            plot_network_torque(idata, "yaw", FIGURES / "hybrid_fnn_u_torque.png")
+            plot_network_torque(idata, "yaw", FIGURES / f"hybrid_fnn_u_torque{every}.png")
         line = {"row": label, "model": model.label, "train": args.train, "test": args.test,
                 **metrics, "seconds": time.perf_counter() - t0,
                 "sampler": {"name": args.sampler, "chains": args.chains, "warmup": args.warmup,

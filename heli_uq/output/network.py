@@ -61,11 +61,16 @@ def network_terms(model) -> list[NeuralTorque]:
     return [t for t in model.torques if isinstance(t, NeuralTorque)]
 
 
-def _most_held(u: np.ndarray, max_points: int) -> np.ndarray:
-    """The distinct rows of ``u`` (N, 2), at most ``max_points`` of the most held, sorted."""
+def _most_held(u: np.ndarray, max_points: int, exclude: np.ndarray | None = None) -> np.ndarray:
+    """The distinct rows of ``u`` (N, 2) not among the rows of ``exclude``, at most
+    ``max_points`` of the most held, sorted."""
     if len(u) == 0:
         return np.zeros((0, 2))
     pairs, counts = np.unique(u, axis=0, return_counts=True)
+    if exclude is not None:
+        old = {tuple(q) for q in np.unique(exclude, axis=0)}
+        new = np.array([tuple(q) not in old for q in pairs], dtype=bool)
+        pairs, counts = pairs[new], counts[new]
     return pairs[np.sort(np.argsort(-counts, kind="stable")[:max_points])]
 
 
@@ -79,12 +84,8 @@ def network_points(problem, term: NeuralTorque, max_points: int = MAX_POINTS, *,
     n = problem.n_train
     u = np.asarray(problem.u[:n], dtype=float)
     if term.inputs == "u":
-        if unseen:
-            rest = np.asarray(problem.u[n:], dtype=float)
-            new = ~np.any(np.all(rest[:, None, :] == _most_held(u, len(u))[None], axis=2), axis=1)
-            pairs = _most_held(rest[new], max_points)
-        else:
-            pairs = _most_held(u, max_points)
+        rest = np.asarray(problem.u[n:], dtype=float)
+        pairs = _most_held(rest, max_points, exclude=u) if unseen else _most_held(u, max_points)
         return {"u_theta": pairs[:, 0], "u_psi": pairs[:, 1]}
     if unseen:
         raise ValueError(f"unseen grid: defined for a network of u only, not of {term.inputs}")

@@ -3,6 +3,7 @@ each command exits 0 and writes into the output root it is given, never into the
 ``studies/results/``.  The notebooks are executed by ``tests/test_notebooks.py``."""
 
 import json
+import math
 import os
 import pathlib
 import sys
@@ -45,3 +46,21 @@ def test_the_study_runs_at_its_quick_size(study, tmp_path):
     assert written, "the study wrote nothing under its output root"
     after = {p: p.stat().st_mtime for p in (REPO / "studies" / "results").rglob("*") if p.is_file()}
     assert after == stored, "a quick run changed the stored results"
+
+
+def test_a_jittered_base_keeps_the_pitch_statics_of_the_rig_fit():
+    """The confusion study's other fit of the rig (``--base-jitter``): spread around the
+    rig fit, reproducible from the seed, ``g`` and the pitch statics
+    ``K_theta_theta / (m r_c)`` kept (else a 5 % spread turns the pitch over)."""
+    from studies.discovery_confusion import jittered_base
+
+    from heli_uq.model import RIG_FIT
+
+    assert jittered_base(3, 0.0) == RIG_FIT
+    base = jittered_base(3, 0.1)
+    assert base == jittered_base(3, 0.1) and base != jittered_base(4, 0.1)
+    assert base["g"] == RIG_FIT["g"]
+    ratio = {k: base[k] / RIG_FIT[k] for k in RIG_FIT}
+    assert ratio["K_theta_theta"] == pytest.approx(ratio["m"] * ratio["r_c"], rel=1e-12)
+    moved = [k for k in RIG_FIT if abs(math.log(ratio[k])) > 1e-3]
+    assert len(moved) >= len(RIG_FIT) - 2, moved

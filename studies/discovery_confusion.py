@@ -8,10 +8,11 @@ inputs a random staircase in the rig's voltage ranges held 3-14 s (``rig_steps``
 published profile (``published``, needs the rig record), iid noise 3 mrad on pitch and
 8 mrad on yaw, quantised by a 4096-count encoder.  With ``--base-jitter S`` the base
 parameters are not the rig fit's but each is multiplied by ``exp(S z)``, ``z ~ N(0, 1)``
-drawn from the case's seed (``g`` kept): the records held out from the package come from
-another fit of the rig, and discovery must not depend on starting at the truth.  Then ``heli_uq.discovery.discover``
-runs on it (``--budget``, train 0-91 s / test 91-131 s).  A case of two effects joined by
-``+`` (``yaw:torque_offset+pitch:deadband``) hides both and runs with ``max_effects=2``.
+drawn from the case's seed (``g`` and the pitch statics kept, :func:`jittered_base`): the
+records held out from the package come from another fit of the rig, and discovery must
+not depend on starting at the truth.  Then ``heli_uq.discovery.discover`` runs on it
+(``--budget``, train 0-91 s / test 91-131 s).  A case of two effects joined by ``+``
+(``yaw:torque_offset+pitch:deadband``) hides both and runs with ``max_effects=2``.
 
 Writes one JSON line per case to ``--out`` (default
 ``studies/results/discovery_confusion.jsonl``): the truth, what was named, whether each

@@ -52,9 +52,8 @@ def test_a_jittered_base_keeps_the_pitch_statics_of_the_rig_fit():
     """The confusion study's other fit of the rig (``--base-jitter``): spread around the
     rig fit, reproducible from the seed, ``g`` and the pitch statics
     ``K_theta_theta / (m r_c)`` kept (else a 5 % spread turns the pitch over)."""
-    from studies.discovery_confusion import jittered_base
-
     from heli_uq.model import RIG_FIT
+    from studies.discovery_confusion import jittered_base
 
     assert jittered_base(3, 0.0) == RIG_FIT
     base = jittered_base(3, 0.1)

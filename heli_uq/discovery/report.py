@@ -47,11 +47,18 @@ def _masks(n: int, windows: dict, split: bool) -> dict:
 
 def _posterior(record, model, train, test, out, cost, seed, guess):
     """NUTS posterior of ``model`` (MAP warm-started from ``guess``, the model's fit on the
-    fitting window): ``(idata, summary, y_sim, y_pred, y_obs, t)``."""
+    fitting window): ``(idata, summary, y_sim, y_pred, y_obs, t)``.
+
+    With a split the posterior is conditioned on the fitting window itself, where ``guess``
+    is already the multi-start MAP of the same model, so it is the only start (more
+    starts cost a stiff model minutes and find nothing better); on a single window the
+    posterior also sees the scoring part, and the budget's starts are tried too.
+    """
+    starts = 1 if test is not None else cost.n_starts
     idata, summary = sample_posterior(record, out, model=model, train=train, test=test, sampler="nuts",
                                       error="iid", chains=cost.chains, warmup=cost.warmup,
                                       draws=cost.samples, seed=seed, progress=False,
-                                      max_tree_depth=cost.max_tree_depth, n_starts=cost.n_starts,
+                                      max_tree_depth=cost.max_tree_depth, n_starts=starts,
                                       guesses=(guess,))  # fmt: skip
     pp = idata.posterior_predictive
     y_sim = np.asarray(pp["y_sim"]).reshape((-1,) + pp["y_sim"].shape[2:])

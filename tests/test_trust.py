@@ -471,3 +471,20 @@ def test_progress_has_no_escape_codes_off_a_terminal():
     silent = io.StringIO()
     Progress(False, silent).update("x", force=True)
     assert silent.getvalue() == ""
+
+
+def test_a_long_figure_title_is_wrapped_inside_the_figure():
+    """A model label and a file name made the bands title wider than the figure (cut off
+    at both edges); it is broken into lines that fit."""
+    from heli_uq.output.plots import plot_bands
+
+    t = np.arange(50) * 0.01
+    obs = np.zeros((50, 2))
+    pred = obs[None] + 0.01 * np.random.default_rng(0).standard_normal((20, 50, 2))
+    title = ("Posterior predictive (laplace, iid errors, mechanistic + coulomb_friction(yaw) + "
+             "torque_offset(yaw) + quadratic_drag(pitch)): Lab-Helicopter_Experimental-data.csv")
+    fig = plot_bands(t, pred, obs, train_mask=np.ones(50, bool), title=title)
+    fig.canvas.draw()
+    box = fig._suptitle.get_window_extent()
+    assert 0 <= box.x0 and box.x1 <= fig.bbox.width and box.y1 <= fig.bbox.height
+    assert fig._suptitle.get_text().replace("\n", " ") == title

@@ -11,6 +11,7 @@ Angles are shown in degrees; everything else in SI units.
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,9 @@ from heli_uq.figure import new_figure, save_figure
 
 __all__ = ["plot_simulation", "plot_experiment", "plot_bands", "save_figure"]
 
+#: Characters of a figure title per inch of figure width (the default 12 pt title font
+#: is about 7 characters per inch; the margin covers wide glyphs and mathtext).
+TITLE_CHARS_PER_INCH = 6.5
 _THETA_COLOR = "C0"
 _PSI_COLOR = "C1"
 
@@ -36,12 +40,19 @@ def _legend(ax) -> None:
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize="small")
 
 
+def _wrap_title(fig, title: str) -> str:
+    """``title`` with each line broken at spaces to fit the figure's width (a model label
+    and a file name can be longer than the figure)."""
+    width = max(int(fig.get_figwidth() * TITLE_CHARS_PER_INCH), 20)
+    return "\n".join(textwrap.fill(line, width, break_on_hyphens=False) for line in title.split("\n"))
+
+
 def _finish(fig, axes, title: str | None) -> None:
     for ax in axes:
         ax.grid(True, alpha=0.4)
     axes[-1].set_xlabel("time $t$ [s]")
     if title:
-        fig.suptitle(title)
+        fig.suptitle(_wrap_title(fig, title))
     fig.tight_layout()
 
 

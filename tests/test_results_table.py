@@ -19,4 +19,4 @@ def test_the_readme_table_is_generated_from_the_stored_results():
 def test_a_missing_result_says_not_run(monkeypatch, tmp_path):
     monkeypatch.setattr(results_table, "RESULTS", tmp_path)
     table = results_table.results_table()
-    assert table.count("not run") == 6  # four posteriors, the hybrid study, discovery
+    assert table.count("not run") == 7  # five posteriors, the hybrid study, discovery

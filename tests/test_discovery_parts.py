@@ -361,3 +361,27 @@ def test_a_much_better_candidate_restarts_the_current_model_from_its_values():
     # no candidate clearly better, or none fitted: keep the current MAP
     assert _nested_guess({"a": close}, current, current["map"]) is None
     assert _nested_guess({"c": failed}, current, current["map"]) is None
+
+
+def test_the_refit_of_a_split_run_starts_from_the_candidates_map_alone(monkeypatch):
+    """With a split the refit's posterior is conditioned on the fitting window, where the
+    candidate's MAP is already the multi-start MAP of the same model: it is the only start.
+    On a single window (the posterior also sees the scoring part) the budget's starts too."""
+    from heli_uq.discovery import report
+    from heli_uq.discovery.workflow import BUDGETS
+
+    seen = []
+
+    def fake_sample_posterior(record, out, **kw):
+        seen.append((kw["n_starts"], kw["guesses"], kw["train"], kw["test"]))
+        raise StopIteration
+
+    monkeypatch.setattr(report, "sample_posterior", fake_sample_posterior)
+    guess = {"m": 0.07}
+    cost = BUDGETS["quick"]
+    for test in ((91.0, 131.0), None):
+        with pytest.raises(StopIteration):
+            report._posterior(None, build_model([]), (0.0, 91.0), test, None, cost, 0, guess)
+    assert seen == [(1, (guess,), (0.0, 91.0), (91.0, 131.0)),
+                    (cost.n_starts, (guess,), (0.0, 91.0), None)]
+    assert cost.n_starts > 1

@@ -21,9 +21,10 @@ from heli_uq.figure import new_figure, save_figure
 
 __all__ = ["plot_simulation", "plot_experiment", "plot_bands", "save_figure"]
 
-#: Characters of a figure title per inch of figure width (the default 12 pt title font
-#: is about 7 characters per inch; the margin covers wide glyphs and mathtext).
-TITLE_CHARS_PER_INCH = 6.5
+#: Characters of a figure title per inch of figure width: the default 12 pt title font
+#: averages about 12 per inch (a 150-character title overflowed an 11 inch figure a
+#: little); the margin covers wide glyphs.
+TITLE_CHARS_PER_INCH = 10.0
 _THETA_COLOR = "C0"
 _PSI_COLOR = "C1"
 

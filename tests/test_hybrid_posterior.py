@@ -35,7 +35,9 @@ def _truth_record():
     return rec, model, values
 
 
-@pytest.fixture(scope="module")
+# Session scope: ``--dist loadgroup`` sends both tests to one worker, but not necessarily
+# one after the other, and a module fixture would be computed again after other modules.
+@pytest.fixture(scope="session")
 def hybrid_run(tmp_path_factory):
     rec, model, values = _truth_record()
     tmp = tmp_path_factory.mktemp("hybrid")

@@ -1,6 +1,7 @@
 """The notebooks: every ``notebooks/NAME.py`` has its executed ``NAME.ipynb`` beside it with
 the same code and with outputs (so it reads on GitHub and cannot silently go stale), and
-each executes at the small size (slow set).  The discovery notebook must name the effect
+each executes at the small size (``study`` mark: ``python -m pytest -m study``, outside
+the README's test command).  The discovery notebook must name the effect
 it hides."""
 
 import importlib.util
@@ -39,6 +40,7 @@ def test_the_stored_notebook_is_the_executed_script(name):
 
 
 @pytest.mark.slow
+@pytest.mark.study
 @pytest.mark.parametrize("name", NAMES)
 def test_the_notebook_executes_at_the_small_size(name, tmp_path):
     nb = execute_module.execute(name, "small", out=tmp_path / f"{name}.ipynb", timeout=CELL_TIMEOUT_S,

@@ -1,6 +1,8 @@
 """Every study of the registry (``python -m studies``) runs at its smallest size (slow set):
 each command exits 0 and writes into the output root it is given, never into the stored
-``studies/results/``.  The notebooks are executed by ``tests/test_notebooks.py``."""
+``studies/results/``.  These runs carry the ``study`` mark: they are outside the README's
+test command (CI), ``python -m pytest -m study`` runs them.  The notebooks are executed by
+``tests/test_notebooks.py``."""
 
 import json
 import math
@@ -34,6 +36,7 @@ def test_unknown_study_is_refused_in_one_line(capsys):
 
 
 @pytest.mark.slow
+@pytest.mark.study
 @pytest.mark.parametrize("study", [s for s in STUDIES if s.name not in ELSEWHERE], ids=lambda s: s.name)
 def test_the_study_runs_at_its_quick_size(study, tmp_path):
     if study.needs_record and not REAL_FILE.is_file():

@@ -137,6 +137,10 @@ def test_overlapping_windows_and_bad_draws_are_clear_errors(synthetic_problem, t
         run_nuts(synthetic_problem, tmp_path, draws=0)
 
 
+#: A tree-depth limit the short synthetic posterior reaches (its trees are 3-4 deep).
+TREE_DEPTH = 2
+
+
 @pytest.mark.slow
 def test_cli_sample_end_to_end(tmp_path, capsys):
     record = synthetic_experiment(duration=2.0, seed=4, noise_std=(0.003, 0.003))
@@ -145,19 +149,22 @@ def test_cli_sample_end_to_end(tmp_path, capsys):
     out = tmp_path / "post"
     code = main(["sample", "--data", str(csv), "--train", "0:1.5", "--test", "1.5:2",
                  "--chains", "1", "--warmup", "40", "--draws", "30", "--error", "iid",
-                 "--no-progress", "--out", str(out)])  # fmt: skip
+                 "--max-tree-depth", str(TREE_DEPTH), "--no-progress", "--out", str(out)])  # fmt: skip
     assert code == 0
     summary = json.loads((out / "summary.json").read_text())
+    assert summary["max_tree_depth"] == TREE_DEPTH
     assert summary["windows"]["test"]["n_samples"] == 50
     assert set(summary["coverage90_test"]) == {"theta", "psi"}
     idata = az.from_netcdf(out / "posterior.nc")
     assert idata.posterior.sizes["draw"] == 30
+    # the limit reaches the sampler: no draw takes more than 2^D - 1 leapfrog steps
+    assert int(idata.sample_stats["n_steps"].max()) <= 2**TREE_DEPTH - 1
     assert (out / "bands.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "m" in (out / "summary.csv").read_text()
     capsys.readouterr()  # forget the successful run's output (arviz logs 1-chain warnings)
     for bad in (["--train", "0:1.5", "--test", "1:2"], ["--draws", "0"],
                 ["--window", "5:9"], ["--fix", "m=lognormal:1:1"],
-                ["--target-accept", "1.0"]):  # fmt: skip
+                ["--target-accept", "1.0"], ["--max-tree-depth", "0"]):  # fmt: skip
         code = main(["sample", "--data", str(csv), "--out", str(out), *bad])
         assert code == 2
         err = capsys.readouterr().err

@@ -152,7 +152,8 @@ def check_positive(args, names) -> None:
     """One clear error for the first of the integer options ``names`` that is not > 0."""
     for name in names:
         if getattr(args, name) <= 0:
-            raise ParameterError(f"--{name}: expected a positive integer, found {getattr(args, name)}")
+            flag = "--" + name.replace("_", "-")
+            raise ParameterError(f"{flag}: expected a positive integer, found {getattr(args, name)}")
 
 
 def out_dir(path: str) -> Path:

@@ -28,7 +28,7 @@ def cmd_sample(args) -> int:
     from heli_uq.inference import TARGET_ACCEPT
     from heli_uq.output.posterior_study import sample_posterior
 
-    check_positive(args, ("chains", "warmup", "draws"))
+    check_positive(args, ("chains", "warmup", "draws", "max_tree_depth"))
     target_accept = TARGET_ACCEPT if args.target_accept is None else args.target_accept
     if args.sampler == "nuts":
         # One XLA host device per chain, so numpyro runs the chains in parallel; only
@@ -50,6 +50,7 @@ def cmd_sample(args) -> int:
         seed=args.seed, resume=args.resume, progress=not args.no_progress,
         walkers=args.walkers, adapt_mass_matrix=args.adapt_mass_matrix == "on",
         target_accept=target_accept, network_posterior=args.nn_posterior or "full",
+        max_tree_depth=args.max_tree_depth,
     )  # fmt: skip
     keys = ("rhat_max", "ess_bulk_min", "ess_tail_min", "divergences", "rmse", "coverage90",
             "rmse_test", "coverage90_test", "solver_error_rad", "wall_s", "rhat_max_network_torque",
@@ -138,6 +139,10 @@ def add_parser(subparsers):
                    help="NUTS: target acceptance of step-size adaptation, in (0, 1) (default:"
                         " heli_uq.inference.TARGET_ACCEPT = 0.9); raise towards 0.99 if a short"
                         " or low-noise record gives divergences (smaller steps, longer trees)")
+    p.add_argument("--max-tree-depth", type=int, default=8,
+                   help="NUTS: at most 2^D - 1 leapfrog steps per draw (default: 8); a stiff"
+                        " model (friction) can spend the whole tree on every draw, a lower D"
+                        " bounds the cost per draw (summary.json reports the saturation)")
     p.add_argument("--walkers", type=int, default=None,
                    help="emcee walkers per ensemble (default: 2 * dim + 2)")
     p.add_argument("--error", choices=["iid", "ar1"], default="ar1",

@@ -27,7 +27,8 @@ def test_ci_runs_the_readme_test_command():
 def test_loadgroup_sends_a_group_to_one_worker(request):
     """``--dist loadgroup`` groups by a suffix pytest-xdist adds to the node id; pytest 9.2
     ignores it (pytest-xdist issue 1386), and every worker then computes the shared NUTS
-    and emcee fixtures again (the CI run took minutes longer)."""
+    and emcee fixtures again (their setup twice in one run; on 2 cores the wall time
+    barely changed, the copies ran side by side)."""
     if not getattr(request.config.option, "loadgroup", False):
         pytest.skip("not run by pytest-xdist with --dist loadgroup")
     assert request.node.nodeid.endswith("@ci_guard")

@@ -20,8 +20,10 @@ angles, zero rates):
 * the same forward / gradient / ratio for two models with one yaw effect:
   ``yaw:coulomb_friction`` with ``F_c_yaw`` = 0.004 N m (stiff: at the substeps
   :func:`heli_uq.simulation.default_substeps` gives over the record's pitch angles, as
-  :func:`heli_uq.probability.make_problem` does) and ``yaw:torque_offset`` with
-  ``T_0_yaw`` = 0.002 N m (smooth: 1 substep);
+  :func:`heli_uq.probability.make_problem` does, and at 5) and ``yaw:torque_offset`` with
+  ``T_0_yaw`` = 0.002 N m (smooth: 1 substep); the gradient per substep relative to the
+  mechanistic gradient, and for several substeps the forward against a baseline that
+  unrolls each sample's substeps in one loop body (the scheme before 2026-11-25);
 * accuracy: max angle error [rad] vs the DOP853 reference of ``tests/reference.py``
   (rtol 1e-11, restarted at each switch of the inputs).
 
@@ -64,8 +66,28 @@ LSODA_RTOL = 1e-6
 #: the substeps come from ``default_substeps`` (stiff) or are 1 (smooth).
 EFFECT_CASES = (
     ("yaw:coulomb_friction", {"F_c_yaw": 0.004}, "default"),
+    ("yaw:coulomb_friction", {"F_c_yaw": 0.004}, 5),
     ("yaw:torque_offset", {"T_0_yaw": 0.002}, 1),
 )
+
+
+def nested_forward(model, u, dt, substeps):
+    """The baseline of the substeps: states (N, 4) with each sample's ``substeps`` RK4 steps
+    unrolled in one loop body (the simulator takes them as rows of their own)."""
+    from heli_uq.simulation.solver import _rk4_step
+
+    def run(p, x0):
+        prepared = model.prepare(model.complete(p))
+
+        def body(y, uk):
+            y_next = y
+            for _ in range(substeps):
+                y_next = _rk4_step(model, prepared, y_next, uk, dt / substeps)[0]
+            return y_next, y
+
+        return jax.lax.scan(body, x0, u)[1]
+
+    return jax.jit(run)
 
 
 def _lsoda(params, x0, u, dt):
@@ -141,21 +163,30 @@ def main(argv=None):
         p_eff = {**params, **values}
         n_sub = (default_substeps(model, p_eff, dt, thetas=exp.y[:, 0]) if substeps == "default"
                  else substeps)  # fmt: skip
+        key = f"{text} x{n_sub}"
+        if key in effects:
+            continue
         kw = {"model": model, "substeps": n_sub}
         f_e = jax.jit(lambda p, x, kw=kw: heli_uq.simulate(p, x, u, dt, **kw))
         g_e = jax.jit(jax.grad(lambda p, x, kw=kw: loss(p, x, **kw), argnums=(0, 1)))
-        fns[f"{text}/forward"] = lambda f=f_e, p=p_eff: f(p, x0)
-        fns[f"{text}/grad"] = lambda g=g_e, p=p_eff: g(p, x0)
-        effects[text] = {"values": values, "substeps": n_sub}
+        fns[f"{key}/forward"] = lambda f=f_e, p=p_eff: f(p, x0)
+        fns[f"{key}/grad"] = lambda g=g_e, p=p_eff: g(p, x0)
+        if n_sub > 1:
+            fns[f"{key}/forward_nested"] = (lambda f=nested_forward(model, u, dt, n_sub), p=p_eff:
+                                            f(p, x0))  # fmt: skip
+        effects[key] = {"effects": text, "values": values, "substeps": n_sub}
 
     ms = interleaved_ms(fns, args.repeats)
     st = {name: _stats(v) for name, v in ms.items()}
     med = {name: s["median_ms"] for name, s in st.items()}
     low = {name: s["min_ms"] for name, s in st.items()}
-    for text, case in effects.items():
-        f, g = f"{text}/forward", f"{text}/grad"
+    for key, case in effects.items():
+        f, g, nested = f"{key}/forward", f"{key}/grad", f"{key}/forward_nested"
         case.update(forward_ms=med[f], forward_min_ms=low[f], grad_ms=med[g], grad_min_ms=low[g],
-                    grad_over_forward=med[g] / med[f], grad_over_forward_min=low[g] / low[f])
+                    grad_over_forward=med[g] / med[f], grad_over_forward_min=low[g] / low[f],
+                    grad_per_substep_over_grad=med[g] / case["substeps"] / med["grad"])
+        if nested in med:  # the substeps as rows against the same steps unrolled per sample
+            case.update(forward_nested_ms=med[nested], speedup_vs_nested=med[nested] / med[f])
 
     ls = _lsoda(params, x0n, un, dt)
     ref = reference_solution(params, x0n, un, dt)
@@ -207,12 +238,16 @@ def main(argv=None):
           + f"   ({record['vmap8_forward_per_set_ms']:.2f} ms/set)")
     print(row("vmap over 8 sets, grad:", "vmap8_grad")
           + f"   ({med['vmap8_grad'] / len(BATCH_SCALES):.2f} ms/set)")
-    for text, case in effects.items():
-        tag = f"{text} ({case['substeps']} substeps)"
+    for key, case in effects.items():
+        tag = f"{case['effects']} ({case['substeps']} substeps)"
         print(f"{tag:34s} forward {case['forward_ms']:8.2f} ms (min {case['forward_min_ms']:.2f}),"
               f" grad {case['grad_ms']:8.2f} ms (min {case['grad_min_ms']:.2f}),"
               f" grad / forward = {case['grad_over_forward']:.2f}"
-              f" (min/min {case['grad_over_forward_min']:.2f})")
+              f" (min/min {case['grad_over_forward_min']:.2f}),"
+              f" grad per substep / mechanistic grad = {case['grad_per_substep_over_grad']:.2f}")
+        if "speedup_vs_nested" in case:
+            print(f"{'':34s} forward with the substeps unrolled per sample {case['forward_nested_ms']:.2f}"
+                  f" ms: rows of their own are x{case['speedup_vs_nested']:.1f} faster")
     print(f"accuracy vs DOP853 rtol 1e-11: max angle error {err:.2e} rad (LSODA: {err_lsoda:.2e})")
     out = append_jsonl(args.out, record)
     print(f"appended to {out}")

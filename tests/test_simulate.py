@@ -242,28 +242,43 @@ def test_forward_mode_available_with_autodiff_gradients():
         simulate(FITTED, x0, u, 0.01, gradients="magic")
 
 
-@pytest.mark.parametrize("substeps", [3])
-def test_looped_substeps_equal_unrolled_ones_with_gradients(monkeypatch, substeps):
-    """Substeps beyond ``UNROLLED_SUBSTEPS`` run in a loop; the states and the adjoint
-    gradient must be those of the unrolled scheme, on a stiff friction model."""
+@pytest.mark.parametrize("chunk", [None, 64])
+def test_substeps_and_chunked_adjoint_equal_plain_nested_rk4(monkeypatch, chunk):
+    """Substeps run as rows of their own and the adjoint runs in chunks (``chunk`` steps,
+    forced small here so that several chunks and a partial one occur); the states and the
+    gradients (parameters, x0, u) must be those of plain reverse-mode autodiff through
+    ``substeps`` nested RK4 steps per sample, on a stiff friction model."""
     import heli_uq.simulation.solver as solver
     from heli_uq.model import build_model
+    from heli_uq.simulation.solver import _rk4_step
 
+    substeps, n = 3, 100  # 300 steps: 4 chunks of 64 and 44 steps before them
+    if chunk is not None:
+        monkeypatch.setattr(solver, "ADJOINT_CHUNK", chunk)
     model = build_model(["yaw:coulomb_friction"])
     rng = np.random.default_rng(3)
-    u = jnp.asarray(rng.uniform([1.2, 0.5], [1.5, 1.6], size=(200, 2)))
-    w = jnp.asarray(rng.normal(size=(200, 4)))
+    u = jnp.asarray(rng.uniform([1.2, 0.5], [1.5, 1.6], size=(n, 2)))
+    w = jnp.asarray(rng.normal(size=(n, 4)))
     x0 = jnp.array([-0.4, 0.2, 0.1, 0.0])
+    params = {**FITTED, "F_c_yaw": 0.004}
 
-    def loss(p):
+    def plain(p, x0, u):
+        prepared = model.prepare(model.complete(p))
+
+        def body(y, uk):
+            y_next = y
+            for _ in range(substeps):
+                y_next = _rk4_step(model, prepared, y_next, uk, 0.01 / substeps)[0]
+            return y_next, y
+
+        return jnp.sum(w * jax.lax.scan(body, x0, u)[1])
+
+    def ours(p, x0, u):
         return jnp.sum(w * simulate(p, x0, u, 0.01, model=model, substeps=substeps))
 
-    results = []
-    for unrolled in (0, substeps):  # all looped, all unrolled
-        monkeypatch.setattr(solver, "UNROLLED_SUBSTEPS", unrolled)
-        params = model.defaults()
-        results.append((loss(params), jax.grad(loss)(params)))
-    (va, ga), (vb, gb) = results
-    assert abs(float(va - vb)) <= ADJOINT_VS_AUTODIFF * abs(float(vb))
-    for name in ga:
-        assert abs(float(ga[name] - gb[name])) <= ADJOINT_VS_AUTODIFF * (abs(float(gb[name])) + 1e-30), name
+    assert float(ours(params, x0, u)) == pytest.approx(float(plain(params, x0, u)), rel=1e-13)
+    ga = jax.grad(plain, argnums=(0, 1, 2))(params, x0, u)
+    gb = jax.grad(ours, argnums=(0, 1, 2))(params, x0, u)
+    for a, b in zip(jax.tree.leaves(ga), jax.tree.leaves(gb), strict=True):
+        scale = float(jnp.max(jnp.abs(a))) + 1e-30
+        assert float(jnp.max(jnp.abs(a - b))) <= ADJOINT_VS_AUTODIFF * scale

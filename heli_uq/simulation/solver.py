@@ -6,7 +6,10 @@ step never straddles a switch of the input: each switch is treated exactly, with
 smoothing and no adaptive step.  For the paper's model one RK4 step per interval of the
 rig record (dt = 0.01 s) is accurate to well below 1e-6 rad; stiff effects (sharp
 friction) need more substeps, see :func:`default_substeps` and
-:func:`heli_uq.simulation.reference_solve`.
+:func:`heli_uq.simulation.reference_solve`.  Substeps are taken as rows of their own
+(each sample's voltages repeated ``substeps`` times, the states kept at the samples), so
+the loop body is one small RK4 step whatever their number: a body of several unrolled
+steps ran 4-6x slower per step on the CPU.
 
 Gradients use a hand-built *discrete adjoint* (a :func:`jax.custom_vjp`): the
 forward pass stores only the states; the backward pass computes the sines and cosines of
@@ -14,8 +17,9 @@ the pitch angle at every Runge-Kutta stage once (vectorised over time: in float6
 CPU they are most of the cost), then all step Jacobians ``dy_{k+1}/dy_k`` at once
 re-using them, runs the cheap linear adjoint recursion
 ``lam_k = c_k + A_k^T lam_{k+1}`` and gets the parameter and input cotangents from one
-time-vectorised VJP.  The result is the exact gradient of the discrete solution
-(checked against plain reverse-mode autodiff to ~1e-13).
+time-vectorised VJP; all of it in chunks of :data:`ADJOINT_CHUNK` steps, last first.
+The result is the exact gradient of the discrete solution (checked against plain
+reverse-mode autodiff to ~1e-13).
 """
 
 from __future__ import annotations
@@ -43,9 +47,10 @@ MAX_ABS_STATE = 1.0e4
 #: Largest number of solver steps (samples x substeps) one solve may take: 10 million
 #: steps store 0.3 GB of states and trigonometry, several minutes of work.
 MAX_SAMPLES = 10_000_000
-#: Substeps up to this number are unrolled in the step (fastest); more run in a loop, so
-#: that a stiff model does not multiply the compiled program (and its memory) by them.
-UNROLLED_SUBSTEPS = 4
+#: Steps per chunk of the adjoint's backward pass.  A chunk's arrays then stay in the CPU
+#: caches: on the rig record at 5 substeps (65,500 steps) the gradient took 26 ms in
+#: chunks of 16,384 against 41 ms all at once; at 1 substep (one chunk) 4.7 ms either way.
+ADJOINT_CHUNK = 16_384
 
 #: ``rate * h`` at which :func:`default_substeps` places an RK4 step: half the stability
 #: limit 2.785 of RK4 on a decaying mode, which keeps its settling error small.
@@ -143,29 +148,20 @@ def _rk4_step(model, prepared, y, u, h, trig=None):
     return y_new, jnp.stack([t1, t2, t3, t4])
 
 
-def _make_trajectory(static_model, unravel, substeps: int):
-    """Build ``trajectory(args, us, y0) -> ys`` with a discrete-adjoint VJP.
+def _make_trajectory(static_model, unravel):
+    """Build ``trajectory(args, us, y0) -> ys`` (one RK4 step per row of ``us``) with a
+    discrete-adjoint VJP.
 
     ``args`` is the flat float64 vector of ``(dynamic model leaves, prepared parameters,
-    dt)`` (``unravel`` restores the pytree): one loop-invariant buffer instead of dozens
+    step)`` (``unravel`` restores the pytree): one loop-invariant buffer instead of dozens
     of scalars keeps the per-step kernel count, and so the run time, low.
     ``us`` (N, 2), or (N, 4) with the held torques (:func:`held_inputs`); ``y0`` (4,).
+    ``ys[k]`` is the state before step ``k``.
     """
 
     def step_tree(args_tree, y, u, trig=None):
-        dyn_model, prepared, dt = args_tree
-        model = eqx.combine(dyn_model, static_model)
-        h = dt / substeps
-        if substeps > UNROLLED_SUBSTEPS:  # a loop keeps compile time and memory flat
-            def sub(y_i, trig_i):
-                return _rk4_step(model, prepared, y_i, u, h, trig_i)
-
-            return lax.scan(sub, y, trig, length=substeps)
-        stage_trig = []
-        for i in range(substeps):
-            y, t = _rk4_step(model, prepared, y, u, h, None if trig is None else trig[i])
-            stage_trig.append(t)
-        return y, jnp.stack(stage_trig)
+        dyn_model, prepared, h = args_tree
+        return _rk4_step(eqx.combine(dyn_model, static_model), prepared, y, u, h, trig)
 
     # The scan bodies unravel the flat ``args`` themselves: closing over the unravelled
     # leaves instead makes every step read dozens of scalar buffers (2-3x slower).
@@ -184,47 +180,73 @@ def _make_trajectory(static_model, unravel, substeps: int):
         ys = forward(args.value, us.value, y0.value)
         return ys, (args.value, us.value, ys, us.perturbed)
 
-    def bwd(res, ct):
-        args, us, ys, us_perturbed = res
-        if isinstance(ct, SymbolicZero):  # the states do not enter the differentiated output
-            ct = jnp.zeros_like(ys)
-        y_prev, u_prev = ys[:-1], us[:-1]
-        tree = unravel(args)
+    def chunk_vjp(tree, lam, y_prev, u_prev, ct_prev, with_u):
+        """The adjoint over consecutive steps ``y_prev -> y_prev[1:], ...`` ending in the
+        cotangent ``lam`` of the state after the last one: ``(lam of the first state,
+        parameter cotangent (flat), input cotangents or None)``."""
         # The stage sines and cosines of every step in one vectorised pass; the Jacobians
         # and the VJP below re-use them.  Recomputing them inside each differentiated pass
         # costs several times more: in float64 on the CPU they are most of the work.
-        trig_prev = jax.vmap(lambda y, u: step_tree(tree, y, u)[1])(y_prev, u_prev)
+        trig = jax.vmap(lambda y, u: step_tree(tree, y, u)[1])(y_prev, u_prev)
 
-        def cached_step(a_tree, y, u, tr):
-            return step_tree(a_tree, y, u, tr)[0]
-
-        # One linearisation of the time-batched step over (args, states, inputs) serves
-        # both the state Jacobians and the parameter/input cotangents below.
         def batched(a_tree, y, u):
-            return jax.vmap(cached_step, in_axes=(None, 0, 0, 0))(a_tree, y, u, trig_prev)
+            return jax.vmap(lambda a, y1, u1, t1: step_tree(a, y1, u1, t1)[0],
+                            in_axes=(None, 0, 0, 0))(a_tree, y, u, trig)  # fmt: skip
 
+        # One linearisation of the batched step over (args, states, inputs) serves both
+        # the state Jacobians and the parameter/input cotangents below.
         _, lin = jax.linearize(batched, tree, y_prev, u_prev)
         zero_tree = jax.tree_util.tree_map(jnp.zeros_like, tree)
         zero_y, zero_u = jnp.zeros_like(y_prev), jnp.zeros_like(u_prev)
         # A_k = d y_{k+1} / d y_k for all k at once: columns from the 4 unit tangents.
         unit = jnp.eye(4, dtype=y_prev.dtype)
         columns = jax.vmap(lambda e: lin(zero_tree, jnp.broadcast_to(e, y_prev.shape), zero_u))(unit)
-        jac = jnp.transpose(columns, (1, 2, 0))  # (N-1, 4 out, 4 in)
+        jac = jnp.transpose(columns, (1, 2, 0))  # (n, 4 out, 4 in)
 
-        def adjoint(lam, inp):
+        def adjoint(lam_k1, inp):
             a_k, c_k = inp
-            return c_k + a_k.T @ lam, lam
+            return c_k + a_k.T @ lam_k1, lam_k1
 
-        lam0, lam_next = lax.scan(adjoint, ct[-1], (jac, ct[:-1]), reverse=True)
+        lam_first, lam_next = lax.scan(adjoint, lam, (jac, ct_prev), reverse=True)
         # Parameter (and input) cotangents: sum_k (d y_{k+1} / d args)^T lam_{k+1}.
-        if us_perturbed:
-            d_tree, d_u = jax.linear_transpose(
-                lambda a, u: lin(a, zero_y, u), tree, u_prev)(lam_next)
-            d_us = jnp.concatenate([d_u, jnp.zeros_like(us[-1:])], axis=0)
+        if with_u:
+            d_tree, d_u = jax.linear_transpose(lambda a, u: lin(a, zero_y, u), tree, u_prev)(lam_next)
         else:
             (d_tree,) = jax.linear_transpose(lambda a: lin(a, zero_y, zero_u), tree)(lam_next)
+            d_u = None
+        return lam_first, ravel_pytree(d_tree)[0], d_u
+
+    def bwd(res, ct):
+        args, us, ys, us_perturbed = res
+        if isinstance(ct, SymbolicZero):  # the states do not enter the differentiated output
+            ct = jnp.zeros_like(ys)
+        tree = unravel(args)
+        y_prev, u_prev, ct_prev = ys[:-1], us[:-1], ct[:-1]
+        # The steps are taken in chunks of ADJOINT_CHUNK, the last chunk first.
+        n = y_prev.shape[0]
+        n_chunks, head = divmod(n, ADJOINT_CHUNK)
+        lam, d_args, d_u_parts = ct[-1], jnp.zeros_like(args), []
+        if n_chunks:
+            def body(carry, chunk):
+                lam_c, acc = carry
+                lam_c, d, d_u = chunk_vjp(tree, lam_c, *chunk, us_perturbed)
+                return (lam_c, acc + d), d_u
+
+            tail = [a[head:].reshape(n_chunks, ADJOINT_CHUNK, *a.shape[1:])
+                    for a in (y_prev, u_prev, ct_prev)]  # fmt: skip
+            (lam, d_args), d_u = lax.scan(body, (lam, d_args), tail, reverse=True)
+            if us_perturbed:
+                d_u_parts.append(d_u.reshape(n_chunks * ADJOINT_CHUNK, -1))
+        if head:
+            lam, d, d_u = chunk_vjp(tree, lam, y_prev[:head], u_prev[:head], ct_prev[:head],
+                                    us_perturbed)  # fmt: skip
+            d_args = d_args + d
+            d_u_parts.insert(0, d_u)
+        if us_perturbed:
+            d_us = jnp.concatenate([*d_u_parts, jnp.zeros_like(us[-1:])], axis=0)
+        else:
             d_us = jnp.zeros_like(us)
-        return ravel_pytree(d_tree)[0], d_us, lam0
+        return d_args, d_us, lam
 
     trajectory.defvjp(fwd, bwd, symbolic_zeros=True)
     return trajectory, forward
@@ -322,9 +344,12 @@ def solve(
     dyn_model, static_model = eqx.partition(model, eqx.is_array)
     prepared = model.prepare(p)
     dt = jnp.asarray(dt, dtype=jnp.float64)
-    args, unravel = ravel_pytree((dyn_model, prepared, dt))
-    adjoint, plain = _make_trajectory(static_model, unravel, substeps)
-    ys = (adjoint if gradients == "adjoint" else plain)(args, held_inputs(model, prepared[1], u), x0)
+    args, unravel = ravel_pytree((dyn_model, prepared, dt / substeps))
+    adjoint, plain = _make_trajectory(static_model, unravel)
+    us = held_inputs(model, prepared[1], u)
+    if substeps > 1:  # one RK4 step per row of the inputs, each sample's held `substeps` times
+        us = jnp.repeat(us, substeps, axis=0)
+    ys = (adjoint if gradients == "adjoint" else plain)(args, us, x0)[::substeps]
     finite = jnp.all(jnp.isfinite(ys))
     bounded = jnp.all(jnp.abs(jnp.where(finite, ys, 0.0)) < MAX_ABS_STATE)
     result = jnp.where(

@@ -10,7 +10,9 @@ published profile (``published``, needs the rig record), iid noise 3 mrad on pit
 parameters are not the rig fit's but each is multiplied by ``exp(S z)``, ``z ~ N(0, 1)``
 drawn from the case's seed (``g`` and the pitch statics kept, :func:`jittered_base`): the
 records held out from the package come from another fit of the rig, and discovery must
-not depend on starting at the truth.  Then ``heli_uq.discovery.discover`` runs on it
+not depend on starting at the truth.  With ``--hidden-omega-s W`` a hidden Coulomb
+friction is smoothed over ``W`` rad/s instead of the fitted term's width (another
+simulator's friction law).  Then ``heli_uq.discovery.discover`` runs on it
 (``--budget``, train 0-91 s / test 91-131 s).  A case of two effects joined by ``+``
 (``yaw:torque_offset+pitch:deadband``) hides both and runs with ``max_effects=2``.
 
@@ -87,13 +89,19 @@ def jittered_base(seed: int, jitter: float) -> dict[str, float]:
     return base
 
 
-def make_record(case: str, inputs: str, seed: int, seconds: float, hidden=HIDDEN, base_jitter=0.0):
+def make_record(case: str, inputs: str, seed: int, seconds: float, hidden=HIDDEN, base_jitter=0.0,
+                omega_s=None):  # fmt: skip
     """The synthetic record of ``case`` (``"none"`` or ``"axis:effect"``) and its truth.
 
     ``hidden`` gives the hidden values (default :data:`HIDDEN`, same layout);
-    ``base_jitter`` the log-normal spread of the base parameters (:func:`jittered_base`).
+    ``base_jitter`` the log-normal spread of the base parameters (:func:`jittered_base`);
+    ``omega_s`` [rad/s] the smoothing width of a hidden ``coulomb_friction`` (default the
+    term's, which the candidates fit): another friction law than the fitted one.
     """
     effects = [] if case == "none" else case.split("+")
+    if omega_s is not None:
+        effects = [{"effect": "coulomb_friction", "axis": e.split(":")[0], "omega_s": omega_s}
+                   if e.endswith(":coulomb_friction") else e for e in effects]  # fmt: skip
     model = build_model(effects)
     truth = jittered_base(seed, base_jitter)
     for term in model.effects:
@@ -114,7 +122,8 @@ def make_record(case: str, inputs: str, seed: int, seconds: float, hidden=HIDDEN
 
 
 def run_case(case: str, inputs: str, seed: int, args) -> dict:
-    rec, truth, model = make_record(case, inputs, seed, args.seconds, args.hidden, args.base_jitter)
+    rec, truth, model = make_record(case, inputs, seed, args.seconds, args.hidden, args.base_jitter,
+                                    args.hidden_omega_s)  # fmt: skip
     split = 0.7 * args.seconds
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -139,7 +148,8 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
             "gap_before": res["gap_before"], "gap_after": res["gap_after"], "decision": res["decision"],
             "budget": args.budget, "discover_s": time.perf_counter() - t0,
             **({"base_jitter": args.base_jitter,
-                "base": {k: truth[k] for k in RIG_FIT}} if args.base_jitter else {})}  # fmt: skip
+                "base": {k: truth[k] for k in RIG_FIT}} if args.base_jitter else {}),
+            **({"hidden_omega_s": args.hidden_omega_s} if args.hidden_omega_s is not None else {})}  # fmt: skip
 
 
 def confusion(path) -> str:
@@ -201,6 +211,9 @@ def main(argv=None) -> int:
                     help="hidden values other than HIDDEN's, e.g. pitch:torsional_spring:k=0.03")
     ap.add_argument("--base-jitter", type=float, default=0.0, metavar="S",
                     help="log-normal spread of the base parameters around the rig fit (0: the fit)")
+    ap.add_argument("--hidden-omega-s", type=float, default=None, metavar="W",
+                    help="smoothing width [rad/s] of a hidden coulomb_friction (default: the "
+                         "fitted term's), e.g. 0.0002 for nearly exact stick-slip")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     ap.add_argument("--out", default=str(RESULTS / "discovery_confusion.jsonl"))
     args = ap.parse_args(argv)

@@ -10,6 +10,7 @@ import os
 import pathlib
 import sys
 
+import numpy as np
 import pytest
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -66,3 +67,23 @@ def test_a_jittered_base_keeps_the_pitch_statics_of_the_rig_fit():
     assert ratio["K_theta_theta"] == pytest.approx(ratio["m"] * ratio["r_c"], rel=1e-12)
     moved = [k for k in RIG_FIT if abs(math.log(ratio[k])) > 1e-3]
     assert len(moved) >= len(RIG_FIT) - 2, moved
+
+
+def test_a_hidden_friction_can_follow_another_smoothing_than_the_fitted_one():
+    """``--hidden-omega-s``: the record's friction law is ``tanh(omega / W)`` with the given
+    width (another simulator's law), everything else as with the fitted term's width; the
+    rest of the case (other effects, the truth) is unchanged."""
+    from heli_uq.model.terms.coulomb_friction import OMEGA_S
+    from heli_uq.simulation.synthetic import ENCODER_QUANTUM
+    from studies.discovery_confusion import make_record
+
+    case = "yaw:coulomb_friction+pitch:torque_offset"
+    sharp, truth, model = make_record(case, "rig_steps", 3, 8.0, omega_s=OMEGA_S / 10)
+    plain, truth_plain, model_plain = make_record(case, "rig_steps", 3, 8.0)
+    assert [(t.kind, getattr(t, "omega_s", None)) for t in model.effects] == [
+        ("coulomb_friction", OMEGA_S / 10), ("torque_offset", None)]
+    assert model_plain.effects[0].omega_s == OMEGA_S and truth == truth_plain
+    assert np.array_equal(sharp.u, plain.u)
+    # same noise draws: the sharper law (less creep where the yaw sticks) moves the yaw by
+    # more than one encoder count within 8 s (measured: two counts)
+    assert np.max(np.abs(sharp.y[:, 1] - plain.y[:, 1])) > ENCODER_QUANTUM

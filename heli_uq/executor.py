@@ -9,8 +9,9 @@ Schedulers
     A ``dask.distributed.LocalCluster`` of worker *processes*, one thread each, started
     with ``spawn``: a process that has already imported JAX is never forked (forking a
     running XLA runtime can deadlock).  Workers share the JAX compilation cache of
-    :data:`CACHE_ENV` (set here to ``~/.cache/heli_uq/jax`` when unset), so a program
-    compiled by one worker or an earlier run is not compiled again.
+    :func:`use_compilation_cache` (``~/.cache/heli_uq/jax`` unless :data:`CACHE_ENV` or
+    this process's JAX names another), so a program compiled by one worker or an earlier
+    run is not compiled again.
 ``"serial"``
     In this process, one task after another (tests, debugging, one-core machines).
 an address (``tcp://host:8786``)
@@ -21,7 +22,7 @@ an address (``tcp://host:8786``)
 A task whose worker process dies (Dask gives up on it after its retries) becomes a
 :class:`TaskFailed` like a task that raised; the others go on.
 
-Layer 0: imports only :mod:`heli_uq.errors` (layer 0).
+Layer 0: imports only :mod:`heli_uq.errors` (layer 0) and, when called, JAX and Dask.
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ import pathlib
 import traceback
 from collections.abc import Callable, Mapping
 
-__all__ = ["run_tasks", "check_scheduler", "TaskFailed", "CACHE_ENV", "default_workers"]
+__all__ = ["run_tasks", "check_scheduler", "TaskFailed", "CACHE_ENV", "default_workers",
+           "use_compilation_cache"]
 
 #: Environment variable (read by JAX) naming the persistent compilation cache directory.
 CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
@@ -59,11 +61,24 @@ def _guarded(fn: Callable, arg):
         return TaskFailed(error=f"{type(exc).__name__}: {exc}{where}")
 
 
-def _share_compilation_cache() -> None:
-    if not os.environ.get(CACHE_ENV):
-        path = pathlib.Path.home() / ".cache" / "heli_uq" / "jax"
-        path.mkdir(parents=True, exist_ok=True)
-        os.environ[CACHE_ENV] = str(path)
+def use_compilation_cache() -> str:
+    """Keep compiled XLA programs on disk, for this process and the workers it starts.
+
+    The directory is, in this order: :data:`CACHE_ENV` if set, the one this process's JAX
+    already uses, or ``~/.cache/heli_uq/jax``.  It is exported in :data:`CACHE_ENV` (spawned
+    workers read it) and, if JAX has none yet, set for this process too, so a program that
+    an earlier run or another worker compiled is read instead of compiled again (entries are
+    keyed by the program, the JAX version and the flags).  Returns the directory.
+    """
+    import jax
+
+    configured = jax.config.jax_compilation_cache_dir
+    path = os.environ.get(CACHE_ENV) or configured or str(pathlib.Path.home() / ".cache" / "heli_uq" / "jax")
+    pathlib.Path(path).mkdir(parents=True, exist_ok=True)
+    os.environ[CACHE_ENV] = path
+    if not configured:
+        jax.config.update("jax_compilation_cache_dir", path)
+    return path
 
 
 def _connect(address: str):
@@ -139,7 +154,7 @@ def run_tasks(fn: Callable, tasks: Mapping, *, scheduler: str | None = "local", 
     import dask
     from dask.distributed import Client, LocalCluster, as_completed
 
-    _share_compilation_cache()
+    use_compilation_cache()
     with dask.config.set({"distributed.worker.multiprocessing-method": "spawn",
                           "distributed.worker.daemon": False}):  # fmt: skip
         if scheduler in (None, "local"):

@@ -452,3 +452,26 @@ def test_bad_models_and_priors_are_one_line(tmp_path, capsys, small_record, argv
                             "--out", str(tmp_path / "o"))  # fmt: skip
     assert code == 2
     assert_one_line_error(err, *needles)
+
+
+def test_commands_keep_compiled_programs_on_disk(tmp_path):
+    """A command writes its compiled programs to ``~/.cache/heli_uq/jax`` (here a temporary
+    home), or to ``JAX_COMPILATION_CACHE_DIR`` when that is set; a second run reads them."""
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env.update(HOME=str(tmp_path / "home"), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
+    cache = tmp_path / "home" / ".cache" / "heli_uq" / "jax"
+    command = [sys.executable, "-m", "heli_uq.cli", "simulate", "--inputs", "table3", "--quiet"]
+    done = subprocess.run([*command, "--out", str(tmp_path / "a")], env=env, capture_output=True,
+                          text=True, timeout=300)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    entries = {p.name for p in cache.iterdir()}
+    assert entries, "nothing was written to the compilation cache"
+    done = subprocess.run([*command, "--out", str(tmp_path / "b")], env=env, capture_output=True,
+                          text=True, timeout=300)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert {p.name for p in cache.iterdir()} == entries  # the same programs: read, not added
+    other = tmp_path / "other"
+    done = subprocess.run([*command, "--out", str(tmp_path / "c")], capture_output=True, text=True,
+                          env={**env, "JAX_COMPILATION_CACHE_DIR": str(other)}, timeout=300)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert any(other.iterdir()) and {p.name for p in cache.iterdir()} == entries

@@ -23,7 +23,10 @@ with an argument name (``effects: ...``) is shown with the option that set it
 (``--effects: ...``).
 
 JAX: the commands that sample set one XLA host device per chain
-(``numpyro.set_host_device_count``) before JAX starts, so chains run in parallel.
+(``numpyro.set_host_device_count``) before JAX starts, so chains run in parallel.  Every
+command keeps compiled programs on disk (:func:`heli_uq.executor.use_compilation_cache`,
+``~/.cache/heli_uq/jax`` unless ``JAX_COMPILATION_CACHE_DIR`` names another): a rerun, a
+resumed run or the next record of the same length reads them instead of compiling again.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ import sys
 from heli_uq.cli import data, design, discover, identifiability, run, sample, simulate
 from heli_uq.cli.options import Formatter
 from heli_uq.errors import HeliUQError
+from heli_uq.executor import use_compilation_cache
 from heli_uq.log import configure_cli
 
 __all__ = ["main", "build_parser"]
@@ -109,6 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
     configure_cli(args.quiet)
+    use_compilation_cache()
     if args.quiet and hasattr(args, "no_progress"):
         args.no_progress = True
     try:

@@ -118,6 +118,9 @@ def results_table() -> str:
                              "nuts_iid_fnn_u_last_layer_full.summary.json"))
     rows.append(_summary_row("+ yaw coulomb_friction + yaw torque_offset, Laplace on the whole record (iid)",
                              "laplace_iid_friction_offset_yaw_full.summary.json"))
+    rows.append(_summary_row("+ yaw coulomb_friction + yaw torque_offset, NUTS on the whole record (iid, "
+                             "4 chains; the initial yaw state unconverged)",
+                             "nuts_iid_friction_offset_yaw_full.summary.json"))
     rows.append(_discovery_row())
     notes = []
     sbc = RESULTS / "sbc_v2" / "summary.json"

@@ -4,8 +4,8 @@ Rows, each a NUTS posterior (``heli_uq.output.sample_posterior``, iid errors) on
 training window, predicted over the test window:
 
 * ``mechanistic``: the paper's model;
-* ``+ <effect>``: the model with the effect ``heli-uq discover`` named on the rig record
-  (``--effect AXIS:EFFECT``; default: the one in ``results/discover_rig/discovery.json``);
+* ``+ <effect>``: the model with the effects ``heli-uq discover`` added on the rig record
+  (``--effect AXIS:EFFECT[,...]``; default: those in ``results/discover_rig/discovery.json``);
 * ``+ FNN(u)``, ``+ FNN(u,x,v)``: a neural torque on yaw (``--hidden`` units);
 * ``+ recovered equation``: pysindy on the FNN(u) posterior's network torque
   (:func:`heli_uq.discovery.network_equation.recover_equation`), the network replaced by a
@@ -48,10 +48,15 @@ def _parse_window(text):
 
 
 def _discovered_effect(path: pathlib.Path):
+    """The effects a discovery run added (``"axis:effect,..."``: a pair added in one step
+    is both), or None."""
     if not path.exists():
         return None
     found = json.loads(path.read_text())
-    return None if found.get("effect") in (None, "none") else f"{found['axis']}:{found['effect']}"
+    if found.get("effect") in (None, "none"):
+        return None
+    added = found.get("added") or [{"axis": found["axis"], "effect": found["effect"]}]
+    return ",".join(f"{a['axis']}:{a['effect']}" for a in added)
 
 
 def _row_metrics(idata, summary, base_scores, blocks_test, test_slice) -> tuple[dict, np.ndarray]:
@@ -84,7 +89,7 @@ def main(argv=None):
     ap.add_argument("--train", default="0:91")
     ap.add_argument("--test", default="91:131")
     ap.add_argument("--rows", nargs="+", default=list(ROWS), choices=ROWS)
-    ap.add_argument("--effect", default=None, help="AXIS:EFFECT of the named-effect row")
+    ap.add_argument("--effect", default=None, help="AXIS:EFFECT[,...] of the named-effect row")
     ap.add_argument("--hidden", type=int, default=4)
     ap.add_argument("--project", choices=["u", "1,u", "none"], default="u",
                     help="what the FNN(u) output is made orthogonal to (none: the gains and the "

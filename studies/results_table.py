@@ -20,6 +20,21 @@ HEADER = ("| run | V [rad²] full / train / test | RMSE θ train / test [rad] | 
           "| 90 % coverage θ train / test | 90 % coverage ψ train / test | wall | source |")
 
 
+# (label, file under studies/results/) of the stored posterior summaries, in table order; the
+# first three are mechanistic and come before the hybrid point-training rows.
+POSTERIOR_ROWS = (
+    ("mechanistic, NUTS on the whole record (iid)", "nuts_iid_full_target0.95.summary.json"),
+    ("mechanistic, NUTS on 0–91 s, test 91–131 s (iid)", "nuts_iid_train0-91_test91-131.summary.json"),
+    ("mechanistic, NUTS on 0–91 s, test 91–131 s (AR(1))", "nuts_ar1_train0-91_test91-131.summary.json"),
+    ("+ FNN(u), last-layer NUTS on the whole record (iid, 4 chains)",
+     "nuts_iid_fnn_u_last_layer_full.summary.json"),
+    ("+ yaw coulomb_friction + yaw torque_offset, Laplace on the whole record (iid)",
+     "laplace_iid_friction_offset_yaw_full.summary.json"),
+    ("+ yaw coulomb_friction + yaw torque_offset, NUTS on the whole record (iid, 4 chains; the initial yaw "
+     "state unconverged)", "nuts_iid_friction_offset_yaw_full.summary.json"),
+)
+
+
 def _f(x, digits=3):
     return "–" if x is None else f"{x:.{digits}g}"
 
@@ -108,19 +123,9 @@ def results_table() -> str:
     """The table as markdown, with one line per calibration / design result below it."""
     rows = [HEADER, "|" + "---|" * 8]
     rows += _paper_rows()
-    rows.append(_summary_row("mechanistic, NUTS on the whole record (iid)", "nuts_iid_full_target0.95.summary.json"))
-    rows.append(_summary_row("mechanistic, NUTS on 0–91 s, test 91–131 s (iid)",
-                             "nuts_iid_train0-91_test91-131.summary.json"))
-    rows.append(_summary_row("mechanistic, NUTS on 0–91 s, test 91–131 s (AR(1))",
-                             "nuts_ar1_train0-91_test91-131.summary.json"))
+    rows += [_summary_row(label, name) for label, name in POSTERIOR_ROWS[:3]]
     rows += _hybrid_rows()
-    rows.append(_summary_row("+ FNN(u), last-layer NUTS on the whole record (iid, 4 chains)",
-                             "nuts_iid_fnn_u_last_layer_full.summary.json"))
-    rows.append(_summary_row("+ yaw coulomb_friction + yaw torque_offset, Laplace on the whole record (iid)",
-                             "laplace_iid_friction_offset_yaw_full.summary.json"))
-    rows.append(_summary_row("+ yaw coulomb_friction + yaw torque_offset, NUTS on the whole record (iid, "
-                             "4 chains; the initial yaw state unconverged)",
-                             "nuts_iid_friction_offset_yaw_full.summary.json"))
+    rows += [_summary_row(label, name) for label, name in POSTERIOR_ROWS[3:]]
     rows.append(_discovery_row())
     notes = []
     sbc = RESULTS / "sbc_v2" / "summary.json"

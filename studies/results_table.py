@@ -28,6 +28,8 @@ POSTERIOR_ROWS = (
     ("mechanistic, NUTS on 0–91 s, test 91–131 s (AR(1))", "nuts_ar1_train0-91_test91-131.summary.json"),
     ("+ FNN(u), last-layer NUTS on the whole record (iid, 4 chains)",
      "nuts_iid_fnn_u_last_layer_full.summary.json"),
+    ("+ FNN(u), last-layer NUTS on 0–91 s, test 91–131 s (iid, 4 chains)",
+     "nuts_iid_fnn_u_last_layer_train0-91_test91-131.summary.json"),
     ("+ yaw coulomb_friction + yaw torque_offset, Laplace on the whole record (iid)",
      "laplace_iid_friction_offset_yaw_full.summary.json"),
     ("+ yaw coulomb_friction + yaw torque_offset, NUTS on the whole record (iid, 4 chains; the initial yaw "

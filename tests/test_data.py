@@ -478,3 +478,27 @@ def test_synthetic_rejects_bad_options(kwargs):
 
 def test_module_exports():
     assert set(data.__all__) <= set(dir(data))
+
+
+def test_unseen_inputs_marks_the_samples_whose_voltage_pair_the_other_window_never_holds():
+    seen = np.array([[1.2, 0.5], [1.2, 0.5], [1.3, 0.7]])
+    u = np.array([[1.2, 0.5], [1.3, 0.5], [1.3, 0.7], [1.2, 0.7], [1.3, 0.5]])
+    # each voltage is seen on its own, but (1.3, 0.5) and (1.2, 0.7) are new pairs
+    np.testing.assert_array_equal(data.unseen_inputs(seen, u), [False, True, False, True, True])
+    assert not data.unseen_inputs(u, u).any()
+    assert data.unseen_inputs(np.zeros((0, 2)), u).all()
+
+
+@needs_real
+def test_the_rig_record_test_window_holds_voltage_pairs_its_training_window_never_holds():
+    """The published split (train 0-91 s, test 91-131 s): a pitch voltage the training
+    window never holds makes every pair it is in new, and the swing the models miss
+    (114-121 s, u = (1.451, 1.420) V) is at such a pair."""
+    rec = load_experimental(data_dir=REAL_DIR)
+    fit, test = rec.t < 91.0 - 1e-9, rec.t >= 91.0 - 1e-9
+    new = data.unseen_inputs(rec.u[fit], rec.u[test])
+    never_theta = ~np.isin(rec.u[test, 0], rec.u[fit, 0])
+    assert never_theta.any() and new[never_theta].all()
+    swing = (rec.t[test] >= 115.0) & (rec.t[test] < 120.0)
+    assert new[swing].all()
+    assert 0 < new.mean() < 1

@@ -53,6 +53,15 @@ def test_discover_names_a_hidden_yaw_offset_and_closes_the_gap(tmp_path):
     for name in ("report.md", "bands_before.png", "bands_after.png", "residuals.png", "candidates.png",
                  "refit/posterior.nc"):  # fmt: skip
         assert (tmp_path / name).stat().st_size > 0, name
+    # the report counts the test window's voltage pairs that the fitting window never holds
+    fit, test = rec.t < SPLIT - 1e-9, rec.t >= SPLIT - 1e-9
+    fit_pairs = {tuple(q) for q in rec.u[fit]}
+    new_pairs = {tuple(q) for q in rec.u[test]} - fit_pairs
+    report = (tmp_path / "report.md").read_text()
+    if new_pairs:
+        assert f"**{len(new_pairs)} voltage pair(s) the fitting window never holds**" in report
+    else:
+        assert "never holds" not in report
 
 
 @pytest.mark.slow

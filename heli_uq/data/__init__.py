@@ -23,9 +23,10 @@ from heli_uq.data.record import HEADER as HEADER
 from heli_uq.data.record import Experiment as Experiment
 from heli_uq.data.record import parse_window as parse_window
 from heli_uq.data.record import read_record as read_record
+from heli_uq.data.record import unseen_inputs as unseen_inputs
 
 __all__ = [
     "DATA_ENV_VAR", "EXPERIMENTAL_FILENAME", "EXPERIMENTAL_SHA256", "EXPERIMENTAL_URL",
     "load_data", "load_experimental", "COLUMNS", "HEADER", "Experiment", "parse_window",
-    "read_record",
+    "read_record", "unseen_inputs",
 ]  # fmt: skip

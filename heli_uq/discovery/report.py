@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 
+from heli_uq.data import unseen_inputs
 from heli_uq.discovery.candidates import FitTask, fitted_predictive
 from heli_uq.discovery.score import GAP_KEYS, MARGIN_PER_SAMPLE, gap_metrics
 from heli_uq.figure import new_figure, save_figure
@@ -260,6 +261,21 @@ def _fmt_gap(g: dict) -> str:
     return " | ".join(f"{g[k]:.3f}" if "rmse" in k or k == "V" else f"{g[k]:.0%}" for k in GAP_KEYS)
 
 
+def _unseen_lines(record, fit_window, score_window) -> list[str]:
+    """A paragraph on the scored samples whose voltage pair the fitting window never holds
+    (none when the two windows are the same or every pair is seen)."""
+    t, u = np.asarray(record.t), np.asarray(record.u)
+    fit = (t >= fit_window[0] - 1e-9) & (t < fit_window[1] - 1e-9)
+    scored = (t >= score_window[0] - 1e-9) & (t < score_window[1] - 1e-9)
+    new = unseen_inputs(u[fit], u[scored])
+    if not new.any() or tuple(fit_window) == tuple(score_window):
+        return []
+    pairs = len(np.unique(u[scored][new], axis=0))
+    return ["", f"The scored window holds **{pairs} voltage pair(s) the fitting window never holds**, "
+            f"{new.mean():.0%} of its samples: there a score measures extrapolation in the inputs "
+            "(a gain error or an input nonlinearity is not constrained by the fit)."]
+
+
 def _report(result, where, ranking, steps, base, budget, fit_window, score_window, n_scored, health,
             whole, seconds, record) -> str:  # fmt: skip
     lines = [f"# Discovery report: {pathlib.Path(str(record.source)).name}", "",
@@ -276,6 +292,7 @@ def _report(result, where, ranking, steps, base, budget, fit_window, score_windo
         lines.append(f"| {w} | {m['rmse_theta']:.3f} | {m['outside90_theta']:.0%} | {m['rmse_psi']:.3f} | "
                      f"{m['outside90_psi']:.0%} |")  # fmt: skip
     worst = sorted(where["segments"], key=lambda s: -max(s["outside90_theta"], s["outside90_psi"]))[:5]
+    lines += _unseen_lines(record, fit_window, score_window)
     lines += ["", "Input segments with the most misses (share outside the 90 % band):", "",
               "| t [s] | u_theta [V] | u_psi [V] | pitch | yaw |", "|---|---|---|---|---|"]
     lines += [f"| {s['t0']:.1f}-{s['t1']:.1f} | {s['u_theta']:.3f} | {s['u_psi']:.3f} | "

@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from heli_uq.data import unseen_inputs
 from heli_uq.model.terms.linear_torque import LINEAR_TORQUE_PARAMETERS
 from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.model.terms.rigid_body import MECHANICS_PARAMETERS, pitch_inertia, yaw_inertia
@@ -68,8 +69,7 @@ def _most_held(u: np.ndarray, max_points: int, exclude: np.ndarray | None = None
         return np.zeros((0, 2))
     pairs, counts = np.unique(u, axis=0, return_counts=True)
     if exclude is not None:
-        old = {tuple(q) for q in np.unique(exclude, axis=0)}
-        new = np.array([tuple(q) not in old for q in pairs], dtype=bool)
+        new = unseen_inputs(exclude, pairs)
         pairs, counts = pairs[new], counts[new]
     return pairs[np.sort(np.argsort(-counts, kind="stable")[:max_points])]
 

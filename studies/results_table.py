@@ -34,6 +34,8 @@ POSTERIOR_ROWS = (
      "laplace_iid_friction_offset_yaw_full.summary.json"),
     ("+ yaw coulomb_friction + yaw torque_offset, NUTS on the whole record (iid, 4 chains; the initial yaw "
      "state unconverged)", "nuts_iid_friction_offset_yaw_full.summary.json"),
+    ("+ yaw coulomb_friction + yaw torque_offset, NUTS on the whole record (iid, 4 chains, ω_ψ(0) = 0: "
+     "the record starts at rest; converged)", "nuts_iid_friction_offset_yaw_full_rest.summary.json"),
     ("+ yaw coulomb_friction + yaw torque_offset, Laplace on 0–91 s, test 91–131 s (iid; Pareto k 0.87: "
      "UNCONVERGED)", "laplace_iid_friction_offset_yaw_train0-91_test91-131.summary.json"),
 )

@@ -264,13 +264,13 @@ def _fmt_gap(g: dict) -> str:
 def _unseen_lines(record, fit_window, score_window) -> list[str]:
     """A paragraph on the scored samples whose voltage pair the fitting window never holds
     (none when the two windows are the same or every pair is seen)."""
-    t, u = np.asarray(record.t), np.asarray(record.u)
-    fit = (t >= fit_window[0] - 1e-9) & (t < fit_window[1] - 1e-9)
-    scored = (t >= score_window[0] - 1e-9) & (t < score_window[1] - 1e-9)
-    new = unseen_inputs(u[fit], u[scored])
-    if not new.any() or tuple(fit_window) == tuple(score_window):
+    if tuple(fit_window) == tuple(score_window):
         return []
-    pairs = len(np.unique(u[scored][new], axis=0))
+    scored = np.asarray(record.window(*score_window).u)
+    new = unseen_inputs(record.window(*fit_window).u, scored)
+    if not new.any():
+        return []
+    pairs = len(np.unique(scored[new], axis=0))
     return ["", f"The scored window holds **{pairs} voltage pair(s) the fitting window never holds**, "
             f"{new.mean():.0%} of its samples: there a score measures extrapolation in the inputs "
             "(a gain error or an input nonlinearity is not constrained by the fit)."]

@@ -47,7 +47,6 @@ def hybrid_run(tmp_path_factory):
     code = main(["sample", "--data", str(path), "--model", "hybrid", "--nn-posterior", "full",
                  "--hidden", "2", "--error", "iid",
                  "--fix", f"m={values['m']}", "--chains", "2", "--warmup", "100", "--draws", "100",
-                 "--max-tree-depth", "6",
                  "--no-progress", "--out", str(out)])  # fmt: skip
     return code, out, rec, model, values
 

@@ -132,6 +132,32 @@ def test_a_nested_candidate_in_a_poor_basin_is_refitted_from_effect_off(trap_rec
     assert candidates.score_fitted(fitted, guarded)["off_start"] is True
 
 
+def test_an_untrusted_laplace_gives_the_plug_in_predictive_at_the_map(trap_record, monkeypatch):
+    """Where Pareto k rejects the importance weights, every predictive draw is the MAP: the
+    simulations are one and the same, the band is the residual noise's, and the record
+    says so (``laplace.predictive``)."""
+    import heli_uq.discovery.candidates as candidates
+    from heli_uq.inference.laplace_sampler import PARETO_K_MAX
+
+    rec, base = trap_record
+    assert base.importance["predictive"] == ("laplace" if base.importance["pareto_k"] <= PARETO_K_MAX
+                                             else "map")  # fmt: skip
+    real = candidates.importance_resample
+
+    def untrusted(start, n, seed=0):
+        sites, info = real(start, n, seed=seed)
+        return sites, {**info, "pareto_k": float("inf")}
+
+    monkeypatch.setattr(candidates, "importance_resample", untrusted)
+    task = candidates.FitTask(rec, (0.0, 14.0), (14.0, 20.0), (), (base.params,), 0, 1, 8)
+    fitted = candidates.fitted_predictive(task)
+    assert fitted.importance["predictive"] == "map"
+    np.testing.assert_array_equal(fitted.y_sim, np.broadcast_to(fitted.y_sim[:1], fitted.y_sim.shape))
+    np.testing.assert_array_equal(fitted.sigma, np.broadcast_to(fitted.sigma[:1], fitted.sigma.shape))
+    assert np.all(np.std(fitted.y_pred - fitted.y_sim, axis=0) > 0)  # the noise is kept
+    assert candidates.score_fitted(fitted, task)["laplace"]["predictive"] == "map"
+
+
 @pytest.mark.parametrize("fallback_fails", [False, True])
 def test_a_start_far_above_the_current_fit_is_abandoned_for_the_fallback(trap_record, monkeypatch,
                                                                          fallback_fails):  # fmt: skip

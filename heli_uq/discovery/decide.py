@@ -30,7 +30,7 @@ def rank(results: dict, reference: dict, n_scored: int) -> list[dict]:
                      "score_per_sample": diff / n_scored,
                      "passes": passes(res["block_scores"], reference["block_scores"], n_scored),
                      "held_out": res["score"], "fit": res["fit"], "map_value": res["map_value"],
-                     "seconds": res["seconds"]})  # fmt: skip
+                     "laplace": res.get("laplace"), "seconds": res["seconds"]})  # fmt: skip
     rows.sort(key=lambda r: -np.inf if r["score"] is None else -r["score"])
     return rows
 

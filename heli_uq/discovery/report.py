@@ -75,7 +75,8 @@ def _candidate_rows(rows: list[dict]) -> list[dict]:
         axes = sorted({e.split(":")[0] for e in r["added"]})
         row = {"effect": "+".join(kinds), "axis": "+".join(axes), "score": r["score"],
                "score_se": r["score_se"], "step": r["step"], "model": r["effect"]}  # fmt: skip
-        for k in ("score_per_sample", "passes", "tied", "chosen_by", "held_out", "fit", "seconds", "error"):
+        for k in ("score_per_sample", "passes", "tied", "chosen_by", "held_out", "fit", "laplace", "seconds",
+                  "error"):
             if k in r:
                 row[k] = r[k]
         out.append(row)
@@ -291,6 +292,12 @@ def _report(result, where, ranking, steps, base, budget, fit_window, score_windo
     for w, m in where["windows"].items():
         lines.append(f"| {w} | {m['rmse_theta']:.3f} | {m['outside90_theta']:.0%} | {m['rmse_psi']:.3f} | "
                      f"{m['outside90_psi']:.0%} |")  # fmt: skip
+    imp = base.get("laplace")
+    if imp:
+        how = ("its Laplace draws resampled by importance weights" if imp["predictive"] == "laplace" else
+               "the plug-in predictive at its MAP (the importance weights of its Laplace draws rejected)")
+        lines += ["", f"The base model's predictive band is {how}: Pareto k {imp['pareto_k']:.2f}, "
+                  f"ESS {imp['ess']:.0f}."]  # fmt: skip
     worst = sorted(where["segments"], key=lambda s: -max(s["outside90_theta"], s["outside90_psi"]))[:5]
     lines += _unseen_lines(record, fit_window, score_window)
     lines += ["", "Input segments with the most misses (share outside the 90 % band):", "",
@@ -306,17 +313,23 @@ def _report(result, where, ranking, steps, base, budget, fit_window, score_windo
     lines += [f"| {r['effect']} | {r['inclusion']:.2f} | {r['explained']:.3f} | "
               + ", ".join(f"{k} = {v:.3g}" for k, v in r["implied"].items()) + " |" for r in ranking]
     lines += ["", "## 3. Candidates (held-out score vs the current model)", "",
+              "Each candidate's predictive is its Laplace approximation at the MAP, resampled by "
+              "importance weights toward the posterior (ESS: their effective number); where Pareto k "
+              "exceeds 0.7 the weights are not trusted and the predictive is the plug-in one at the "
+              "MAP (marked *MAP*).", "",
               "| step | effect | axis | score [nats] | SE | per sample | passes | held-out yaw RMSE | "
-              "held-out V | fit [s] |", "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+              "held-out V | Pareto k (ESS) | fit [s] |", "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for c in result["candidates"]:
         if c.get("score") is None:
             lines.append(f"| {c['step']} | {c['effect']} | {c['axis']} | failed: {c.get('error')} |"
-                         " | | | | | |")  # fmt: skip
+                         " | | | | | | |")  # fmt: skip
             continue
-        held = c["held_out"]
+        held, imp = c["held_out"], c.get("laplace") or {}
+        k = f"{imp['pareto_k']:.2f} ({imp['ess']:.0f})" if imp else "–"
+        k += " *MAP*" if imp.get("predictive") == "map" else ""
         lines.append(f"| {c['step']} | {c['effect']} | {c['axis']} | {c['score']:+.0f} | {c['score_se']:.0f} "
                      f"| {c['score_per_sample']:+.3f} | {'yes' if c['passes'] else 'no'} | "
-                     f"{held['rmse_psi']:.3f} | {held['V']:.3f} | {c['seconds']:.0f} |")  # fmt: skip
+                     f"{held['rmse_psi']:.3f} | {held['V']:.3f} | {k} | {c['seconds']:.0f} |")  # fmt: skip
     lines += ["", "## 4. Steps", ""]
     for s in steps:
         what = ", ".join(s["added"]) if s["added"] else s.get("decision", "")

@@ -165,13 +165,19 @@ def _key(effects) -> str:
     return "+".join(effects) if effects else "base"
 
 
+#: Version of a stored candidate fit; a stored fit of another version is fitted again
+#: (2: the Laplace draws are importance-resampled before scoring, or the MAP's plug-in
+#: predictive when Pareto k rejects them).
+FIT_VERSION = 2
+
+
 def _signature(record: Experiment, task: FitTask) -> str:
     h = hashlib.sha256()
     for a in (record.t, record.u, record.y):
         h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
     h.update(json.dumps([task.fit_window, task.score_window, task.effects, task.seed,
                          task.n_starts, task.draws, task.newton_steps, task.guesses, task.off,
-                         task.floor],
+                         task.floor, FIT_VERSION],
                         default=float).encode())  # fmt: skip
     return h.hexdigest()
 

@@ -14,6 +14,12 @@ expectations; above it the run's health check fails.  Each draw costs one log-de
 evaluation (one solve) for this check.  The "chains" are independent batches of draws,
 so R-hat and ESS only check the bookkeeping.
 
+:func:`importance_resample` uses the same weights to correct the draws: it resamples them
+in proportion to their Pareto-smoothed weights (systematic resampling), so a Laplace
+approximation that is too wide in some direction (draws that fit the data far worse than
+any posterior draw would) cannot widen a predictive band.  The discovery scores its
+candidates on such resampled draws.
+
 Layer 5 (inference).
 """
 
@@ -25,11 +31,12 @@ import arviz as az
 import jax
 import numpy as np
 
+from heli_uq.errors import ParameterError
 from heli_uq.inference.density import constrain_draws
 from heli_uq.inference.start import Start, prepare_start
 from heli_uq.probability.problem import Problem
 
-__all__ = ["run_laplace", "PARETO_K_MAX"]
+__all__ = ["run_laplace", "importance_resample", "psis_weights", "PARETO_K_MAX"]
 
 #: Largest Pareto k at which the Laplace draws are trusted (Vehtari et al. 2024).
 PARETO_K_MAX = 0.7
@@ -45,6 +52,52 @@ def _log_weights(start: Start, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     prec = np.linalg.pinv(start.covariance, hermitian=True)
     log_q = -0.5 * np.einsum("ni,ij,nj->n", diff, prec, diff)
     return np.where(np.isfinite(pot), -pot - log_q, -np.inf), pot
+
+
+def psis_weights(log_w: np.ndarray) -> tuple[np.ndarray, float]:
+    """Normalised Pareto-smoothed importance weights (n,) of log-weights ``log_w`` (n,)
+    (``-inf`` where a draw's log density is not finite: weight 0) and their Pareto ``k``
+    (:func:`arviz.psislw`)."""
+    log_w = np.asarray(log_w, dtype=float)
+    finite = np.isfinite(log_w)
+    if not finite.any():
+        return np.full(log_w.shape, np.nan), float("inf")
+    smoothed, k = az.psislw(np.where(finite, log_w, np.min(log_w[finite]) - 50.0))
+    w = np.where(finite, np.exp(smoothed - np.max(smoothed[finite])), 0.0)
+    return w / w.sum(), float(k)
+
+
+def importance_resample(start: Start, n: int, seed: int = 0) -> tuple[dict, dict]:
+    """``n`` Laplace draws at the MAP, resampled by their importance weights toward the
+    posterior (module docstring).
+
+    Returns
+    -------
+    sites : dict
+        ``{name: array (n, ...)}``, constrained sites as :meth:`Start.laplace_draws`; draws
+        of large weight repeated, draws of negligible weight left out.
+    info : dict
+        ``pareto_k`` (above :data:`PARETO_K_MAX`: the Gaussian was far from the posterior
+        and the resampled draws are few distinct ones near its mode), ``ess`` (the
+        weights' effective sample size, ``1 / sum w^2``), ``distinct`` (distinct draws
+        kept) and ``failed_draws`` (draws whose solve failed).
+
+    Raises
+    ------
+    ParameterError
+        When no draw has a finite log density.
+    """
+    rng = np.random.default_rng(seed)
+    x = rng.multivariate_normal(start.x_map, start.covariance, n, method="eigh")
+    log_w, _ = _log_weights(start, x)
+    w, k = psis_weights(log_w)
+    if not np.all(np.isfinite(w)):
+        raise ParameterError(f"Laplace draws: none of {n} has a finite log density")
+    # systematic resampling: draw i is kept floor or ceil of n w_i times
+    idx = np.minimum(np.searchsorted(np.cumsum(w), (rng.uniform() + np.arange(n)) / n), n - 1)
+    info = {"pareto_k": k, "ess": float(1.0 / np.sum(w**2)), "distinct": int(np.unique(idx).size),
+            "failed_draws": int(np.sum(~np.isfinite(log_w)))}  # fmt: skip
+    return constrain_draws(start.density, x[idx]), info
 
 
 def run_laplace(problem: Problem, out_dir=None, *, chains: int = 4, draws: int = 1000, seed: int = 0,
@@ -65,8 +118,7 @@ def run_laplace(problem: Problem, out_dir=None, *, chains: int = 4, draws: int =
     x = rng.multivariate_normal(start.x_map, start.covariance, chains * draws, method="eigh")
     log_w, potential = _log_weights(start, x)
     finite = np.isfinite(log_w)
-    _, k = az.psislw(np.where(finite, log_w, np.min(log_w[finite], initial=0.0) - 50.0))
-    k = float(k)
+    _, k = psis_weights(log_w)
     flat = constrain_draws(start.density, x)
     samples = {name: v.reshape((chains, draws) + v.shape[1:]) for name, v in flat.items()}
     info = dict(start.info(), sampler="laplace", chains=chains, draws=draws, seed=seed, pareto_k=k,

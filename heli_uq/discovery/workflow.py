@@ -13,7 +13,9 @@ Steps (the module of each in parentheses):
    the ranking orders the candidates and gives start values.
 4. **Name** (:mod:`~heli_uq.discovery.candidates`, :mod:`~heli_uq.discovery.score`):
    every candidate effect (each effect of the vocabulary on each axis, not yet in the
-   model) is added to the current model, fitted and scored on held-out blocks; with two
+   model) is added to the current model, fitted and scored on held-out blocks (its
+   predictive: the Laplace draws resampled by importance weights, or the plug-in at the
+   MAP where Pareto k rejects them); with two
    or more effects still allowed, pairs too, of the :attr:`Budget.pair_top` singles that
    fit the fitting window best and the best single by held-out score (single effects can
    be weak alone and strong together, as friction and a torque offset on the rig's yaw).

@@ -5,6 +5,7 @@ short and with a restricted candidate list, so the workflow runs in minutes; the
 vocabulary on 131 s records is ``studies/discovery_confusion.py``.
 """
 
+import dataclasses
 import json
 
 import pytest
@@ -91,17 +92,24 @@ def test_bad_input_is_refused_before_any_fit(tmp_path):
         discover(rec, tmp_path, budget="huge")
 
 
-def test_cli_bad_input_is_one_line(tmp_path, capsys):
+def _csv(tmp_path):
+    """A 30 s record without hidden effects as a CSV in the published format."""
     csv = tmp_path / "rec.csv"
     rec = _record([], {}, seed=1)
     lines = ["u_theta,u_psi,theta,psi,dt"] + [
         f"{u[0]},{u[1]},{y[0]},{y[1]},{0.01 if i == 0 else ''}" for i, (u, y) in enumerate(zip(rec.u, rec.y))]
     atomic_write_text(csv, "\n".join(lines) + "\n")
+    return csv
+
+
+def test_cli_bad_input_is_one_line(tmp_path, capsys):
+    csv = _csv(tmp_path)
     for argv, needle in ((["--base-effects", "yaw:stiction"], "unknown effect 'stiction'"),
                          (["--candidates", "yaw:torque_offset,yaw:stiction"], "unknown effect 'stiction'"),
                          (["--window", "0:10"], "too short"),
                          (["--train", "0:20"], "--train and --test go together"),
                          (["--max-effects", "0"], "--max-effects"),
+                         (["--cold-starts", "-1"], "--cold-starts"),
                          (["--scheduler", "tcp://127.0.0.1:1"], "cannot reach a Dask scheduler")):  # fmt: skip
         code = main(["discover", str(csv), "--out", str(tmp_path / "o"), *argv])
         err = capsys.readouterr().err.strip().splitlines()
@@ -124,3 +132,22 @@ def test_a_refit_that_predicts_worse_than_the_base_is_reported_not_passed_as_a_f
     steps = [{"score": 100.0, "score_se": 10.0}]
     assert "Warning" not in _decision(["yaw:deadband"], [], steps, before, better)
     assert warning in _decision(["yaw:deadband"], [], steps, before, worse_on_test)
+
+
+def test_cli_cold_starts_override_the_budget(tmp_path, monkeypatch):
+    """``--cold-starts N`` runs the chosen budget with N cold starts per candidate; without
+    it the budget is passed by name."""
+    import heli_uq.discovery as discovery
+    from heli_uq.discovery import BUDGETS
+
+    csv = _csv(tmp_path)
+    seen = []
+
+    def fake(record, out, **kw):
+        seen.append(kw["budget"])
+        return {"effect": "none", "axis": None, "parameters": {}}
+
+    monkeypatch.setattr(discovery, "discover", fake)
+    assert main(["discover", str(csv), "--budget", "full", "--cold-starts", "3", "--out", str(tmp_path / "a")]) == 0
+    assert main(["discover", str(csv), "--out", str(tmp_path / "b")]) == 0
+    assert seen == [dataclasses.replace(BUDGETS["full"], cold_starts=3), "quick"]

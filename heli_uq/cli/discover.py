@@ -3,6 +3,7 @@ refitted model (:func:`heli_uq.discovery.discover`)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 from heli_uq.cli.options import EFFECTS_HELP, Formatter, out_dir
@@ -19,6 +20,11 @@ def cmd_discover(args) -> int:
 
     if args.max_effects < 1:
         raise ParameterError(f"--max-effects: expected an integer >= 1, found {args.max_effects}")
+    budget = args.budget
+    if args.cold_starts is not None:
+        if args.cold_starts < 0:
+            raise ParameterError(f"--cold-starts: expected an integer >= 0, found {args.cold_starts}")
+        budget = dataclasses.replace(BUDGETS[args.budget], cold_starts=args.cold_starts)
     numpyro.set_host_device_count(BUDGETS[args.budget].chains)
     record = load_data(args.data)
     window = parse_window(args.window) if args.window else None
@@ -32,7 +38,7 @@ def cmd_discover(args) -> int:
     candidates = [s.strip() for s in (args.candidates or "").split(",") if s.strip()] or None
     out = out_dir(args.out)
     result = discover(record, out, window=window, train=train, test=test, base_effects=base,
-                      budget=args.budget, max_effects=args.max_effects, seed=args.seed,
+                      budget=budget, max_effects=args.max_effects, seed=args.seed,
                       scheduler=args.scheduler, candidates=candidates)  # fmt: skip
     print(json.dumps({k: result[k] for k in ("effect", "axis", "parameters")}))
     print(f"wrote {out / 'discovery.json'}, report.md, bands_before.png, bands_after.png, "
@@ -76,6 +82,9 @@ def add_parser(subparsers):
                    help="effects to try (default: every effect of the vocabulary on each axis)")
     p.add_argument("--budget", choices=["quick", "full"], default="quick",
                    help="effort (default: quick)")
+    p.add_argument("--cold-starts", type=int, default=None, metavar="N",
+                   help="MAP starts of each candidate from the model's start values, besides "
+                        "those next to the current fit (default: the budget's, quick 0, full 1)")  # fmt: skip
     p.add_argument("--max-effects", type=int, default=1,
                    help="most effects to add, greedily, pairs considered (default: 1)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")

@@ -148,7 +148,7 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
                            title=f"After: {build_model(effects).label} (NUTS) - {title}"),
                 out / "bands_after.png")  # fmt: skip
     save_figure(_candidates_figure(result["candidates"], n_scored), out / "candidates.png")
-    label = budget if isinstance(budget, str) else "custom"
+    label = budget if isinstance(budget, str) else repr(budget)
     whole = {"before": gap_metrics(bs, bp, by), "after": gap_metrics(as_, ap, ay)}
     atomic_write_text(out / "report.md", _report(result, where, ranking, steps, base, label, fit_window,
                                                  score_window, n_scored, health, whole,

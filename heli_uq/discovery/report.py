@@ -28,6 +28,9 @@ from heli_uq.output import parameter_summary, plot_bands, sample_posterior
 
 __all__ = ["write_outputs", "gap_warnings", "DISCOVERY_KEYS"]
 
+#: A first-step candidate whose held-out V is below this fraction of the base model's but
+#: whose held-out score is negative is named in the report (closer, yet overconfident).
+CLOSER_V_FRACTION = 0.8
 #: The keys of ``discovery.json``, in order.
 DISCOVERY_KEYS = ("effect", "axis", "parameters", "gap_before", "gap_after", "candidates",
                   "decision", "added")  # fmt: skip
@@ -262,6 +265,21 @@ def _fmt_gap(g: dict) -> str:
     return " | ".join(f"{g[k]:.3f}" if "rmse" in k or k == "V" else f"{g[k]:.0%}" for k in GAP_KEYS)
 
 
+def _closer_lines(candidates: list[dict], base_score: dict) -> list[str]:
+    """A paragraph on the first-step candidates whose held-out mean simulation is much closer
+    to the data than the base model's (V below :data:`CLOSER_V_FRACTION` of its) but whose
+    held-out score is below the base's: their bands are narrower than their misses."""
+    closer = [c for c in candidates if c.get("step") == 1 and c.get("score") is not None and c["score"] < 0
+              and c["held_out"]["V"] < CLOSER_V_FRACTION * base_score["V"]]  # fmt: skip
+    if not closer:
+        return []
+    names = "; ".join(f"{c['effect']} ({c['axis']}): V {c['held_out']['V']:.3g} against the base's "
+                      f"{base_score['V']:.3g} rad^2, score {c['score']:+.0f} nats" for c in closer)  # fmt: skip
+    return ["", f"**Closer, yet scored below the base:** {names}. Their mean simulation is nearer the "
+            "held-out data, but their predictive bands are narrower than their misses, and the log "
+            "predictive density penalises a confident miss more than the base model's wider band."]
+
+
 def _unseen_lines(record, fit_window, score_window) -> list[str]:
     """A paragraph on the scored samples whose voltage pair the fitting window never holds
     (none when the two windows are the same or every pair is seen)."""
@@ -330,6 +348,7 @@ def _report(result, where, ranking, steps, base, budget, fit_window, score_windo
         lines.append(f"| {c['step']} | {c['effect']} | {c['axis']} | {c['score']:+.0f} | {c['score_se']:.0f} "
                      f"| {c['score_per_sample']:+.3f} | {'yes' if c['passes'] else 'no'} | "
                      f"{held['rmse_psi']:.3f} | {held['V']:.3f} | {k} | {c['seconds']:.0f} |")  # fmt: skip
+    lines += _closer_lines(result["candidates"], base["score"])
     lines += ["", "## 4. Steps", ""]
     for s in steps:
         what = ", ".join(s["added"]) if s["added"] else s.get("decision", "")

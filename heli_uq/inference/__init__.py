@@ -30,5 +30,5 @@ SAMPLERS = ("nuts", "emcee", "laplace")
 
 __all__ = ["Checkpoint", "LogDensity", "constrain_draws", "log_density_setup", "run_emcee",
            "masked_least_squares", "MapResult", "find_map", "laplace", "TARGET_ACCEPT",
-           "SamplerRun", "run_nuts", "run_laplace", "importance_resample", "Start", "least_squares_fit", "prepare_start",
-           "start_parameters", "SAMPLERS", "run_manifest", "train", "Training"]  # fmt: skip
+           "SamplerRun", "run_nuts", "run_laplace", "importance_resample", "Start", "least_squares_fit",
+           "prepare_start", "start_parameters", "SAMPLERS", "run_manifest", "train", "Training"]  # fmt: skip

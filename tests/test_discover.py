@@ -148,7 +148,8 @@ def test_cli_cold_starts_override_the_budget(tmp_path, monkeypatch):
         return {"effect": "none", "axis": None, "parameters": {}}
 
     monkeypatch.setattr(discovery, "discover", fake)
-    assert main(["discover", str(csv), "--budget", "full", "--cold-starts", "3", "--out", str(tmp_path / "a")]) == 0
+    argv = ["discover", str(csv), "--budget", "full", "--cold-starts", "3", "--out", str(tmp_path / "a")]
+    assert main(argv) == 0
     assert main(["discover", str(csv), "--out", str(tmp_path / "b")]) == 0
     assert seen == [dataclasses.replace(BUDGETS["full"], cold_starts=3), "quick"]
 
@@ -162,14 +163,16 @@ def test_the_report_names_candidates_closer_than_the_base_yet_scored_below_it():
     base = _gap_record(0.91, 0.95)
 
     def cand(effect, v, score, step=1):
-        return {"effect": effect, "axis": "yaw", "step": step, "score": score, "held_out": _gap_record(v, 0.6)}
+        return {"effect": effect, "axis": "yaw", "step": step, "score": score,
+                "held_out": _gap_record(v, 0.6)}
 
     near = 0.5 * (1 + CLOSER_V_FRACTION) * base["V"]  # closer, but not by the fraction
     rows = [cand("coulomb_friction+torque_offset", 0.40, -21079.0), cand("deadband", 0.40, 55.0),
             cand("torque_offset", near, -78.0), cand("quadratic_drag", 0.40, -10.0, step=2),
             {"effect": "deadband", "axis": "pitch", "step": 1, "score": None, "error": "failed"}]  # fmt: skip
     (_, line) = _closer_lines(rows, base)
-    assert "coulomb_friction+torque_offset (yaw): V 0.4 against the base's 0.91 rad^2, score -21079 nats" in line
+    named = "coulomb_friction+torque_offset (yaw): V 0.4 against the base's 0.91 rad^2, score -21079 nats"
+    assert named in line
     assert line.count("nats") == 1  # only that one
     assert "deadband" not in line and "quadratic_drag" not in line
     assert _closer_lines(rows[1:], base) == []

@@ -274,7 +274,8 @@ def _closer_lines(candidates: list[dict], base_score: dict) -> list[str]:
     if not closer:
         return []
     names = "; ".join(f"{c['effect']} ({c['axis']}): V {c['held_out']['V']:.3g} against the base's "
-                      f"{base_score['V']:.3g} rad^2, score {c['score']:+.0f} nats" for c in closer)  # fmt: skip
+                      f"{base_score['V']:.3g} rad^2, score {c['score']:+.0f} nats"
+                      for c in closer)  # fmt: skip
     return ["", f"**Closer, yet scored below the base:** {names}. Their mean simulation is nearer the "
             "held-out data, but their predictive bands are narrower than their misses, and the log "
             "predictive density penalises a confident miss more than the base model's wider band."]
@@ -336,7 +337,8 @@ def _report(result, where, ranking, steps, base, budget, fit_window, score_windo
               "exceeds 0.7 the weights are not trusted and the predictive is the plug-in one at the "
               "MAP (marked *MAP*).", "",
               "| step | effect | axis | score [nats] | SE | per sample | passes | held-out yaw RMSE | "
-              "held-out V | Pareto k (ESS) | fit [s] |", "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+              "held-out V | Pareto k (ESS) | fit [s] |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for c in result["candidates"]:
         if c.get("score") is None:
             lines.append(f"| {c['step']} | {c['effect']} | {c['axis']} | failed: {c.get('error')} |"

@@ -88,7 +88,7 @@ def importance_resample(start: Start, n: int, seed: int = 0) -> tuple[dict, dict
         When no draw has a finite log density.
     """
     rng = np.random.default_rng(seed)
-    x = rng.multivariate_normal(start.x_map, start.covariance, n, method="eigh")
+    x = start.gaussian_draws(n, rng)
     log_w, _ = _log_weights(start, x)
     w, k = psis_weights(log_w)
     if not np.all(np.isfinite(w)):
@@ -115,7 +115,7 @@ def run_laplace(problem: Problem, out_dir=None, *, chains: int = 4, draws: int =
     t0 = time.perf_counter()
     start = prepare_start(problem, seed=seed) if start is None else start
     rng = np.random.default_rng(seed)
-    x = rng.multivariate_normal(start.x_map, start.covariance, chains * draws, method="eigh")
+    x = start.gaussian_draws(chains * draws, rng)
     log_w, potential = _log_weights(start, x)
     finite = np.isfinite(log_w)
     _, k = psis_weights(log_w)

@@ -223,9 +223,12 @@ class Start:
         """``n`` draws of the Laplace approximation at the MAP (Gaussian in the sampler's
         unconstrained coordinates, so skewed in physical units), as constrained sites:
         ``{name: array (n, ...)}`` (parameters, initial state, residual scales)."""
-        rng = np.random.default_rng(seed)
-        x = rng.multivariate_normal(self.x_map, self.covariance, n, method="eigh")
-        return constrain_draws(self.density, x)
+        return constrain_draws(self.density, self.gaussian_draws(n, np.random.default_rng(seed)))
+
+    def gaussian_draws(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` draws (n, d) of the Laplace approximation ``N(x_map, covariance)`` in the
+        sampler's unconstrained coordinates."""
+        return rng.multivariate_normal(self.x_map, self.covariance, n, method="eigh")
 
     def map_point(self) -> tuple[dict, np.ndarray]:
         """The MAP as ``(params, x0)``: every model parameter [SI] (fixed ones at their

@@ -26,7 +26,8 @@ from _study import RESULTS, append_jsonl, provenance  # noqa: E402
 MODELS = {"mechanistic": [],
           "FNN(u) h=4": [{"effect": "neural_torque", "axis": "yaw", "inputs": "u", "hidden": 4}],
           "FNN(u) h=16": [{"effect": "neural_torque", "axis": "yaw", "inputs": "u", "hidden": 16}],
-          "FNN(u,x,v) h=16": [{"effect": "neural_torque", "axis": "yaw", "inputs": "u,x,v", "hidden": 16}]}  # fmt: skip
+          "FNN(u,x,v) h=16": [{"effect": "neural_torque", "axis": "yaw", "inputs": "u,x,v",
+                               "hidden": 16}]}  # fmt: skip
 
 
 def main(argv=None):

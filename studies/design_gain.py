@@ -3,8 +3,8 @@ staircases of the same length, at truths the design did not see?
 
 The design is made by ``heli_uq.design.design`` from the package's default prior
 (linearised at a fit of the rig record).  Held-out truths are drawn around that centre
-(sd ``--spread`` in every log coordinate); a truth is kept only when the published profile keeps its pitch within +-90 deg (the rig
-did not flip on it); at each truth the linearised (Laplace) posterior
+(sd ``--spread`` in every log coordinate); a truth is kept only when the published profile
+keeps its pitch within +-90 deg (the rig did not flip on it); at each truth the linearised (Laplace) posterior
 of an experiment is ``(S^-1 + F(truth))^-1`` with ``F`` the whitened Fisher information of
 the simulated angles.  Reported per truth: the posterior volume of the design relative to
 the published profile (its first ``--duration`` seconds) and to the median of ``--random``

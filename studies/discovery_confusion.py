@@ -149,7 +149,8 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
             "budget": args.budget, "discover_s": time.perf_counter() - t0,
             **({"base_jitter": args.base_jitter,
                 "base": {k: truth[k] for k in RIG_FIT}} if args.base_jitter else {}),
-            **({"hidden_omega_s": args.hidden_omega_s} if args.hidden_omega_s is not None else {})}  # fmt: skip
+            **({"hidden_omega_s": args.hidden_omega_s}
+               if args.hidden_omega_s is not None else {})}  # fmt: skip
 
 
 def confusion(path) -> str:

@@ -140,7 +140,8 @@ def main(argv=None):
             pairs, weights = network_pairs(fnn_u, "yaw")
             points = {"u_theta": pairs[:, 0], "u_psi": pairs[:, 1]}
             recovered = recover_equation(torque, points, weights, project="u")
-            label, model = "+ recovered equation", equation_model(models["u"][1], "yaw", recovered["selected"])
+            label = "+ recovered equation"
+            model = equation_model(models["u"][1], "yaw", recovered["selected"])
         elif models.get(row) is None:
             print(f"{row}: no discovered effect (run the discover_rig study or pass --effect); skipped")
             continue
@@ -150,8 +151,8 @@ def main(argv=None):
         every = "_every_weight" if args.nn_posterior == "full" and row in ("u", "u,x,v") else ""
         label += ", every weight" if every else ""
         print(f"{label}: {args.sampler} ({args.chains} x ({args.warmup} + {args.draws}))", flush=True)
-        run_dir = runs / (row.replace(",", "") + ("" if row != "u" or args.project == "u" else f"_{args.project}")
-                          + every)  # fmt: skip
+        projected = "" if row != "u" or args.project == "u" else f"_{args.project}"
+        run_dir = runs / (row.replace(",", "") + projected + every)
         idata, summary = sample_posterior(record, run_dir, model=model, train=train,
                                           test=test, error="iid", sampler=args.sampler,
                                           network_posterior=args.nn_posterior,
@@ -197,8 +198,9 @@ def _write_table(lines, path: pathlib.Path) -> None:
     def pct(x):
         return f"{100 * x:.0f} %"
 
-    head = ("| model | V full [rad²] | RMSE θ / ψ train [rad] | RMSE θ / ψ test [rad] | 90 % cov. θ / ψ train "
-            "| 90 % cov. θ / ψ test | test score − mechanistic [nats] (se) | parameters | sampler | R-hat | wall |\n"
+    head = ("| model | V full [rad²] | RMSE θ / ψ train [rad] | RMSE θ / ψ test [rad] "
+            "| 90 % cov. θ / ψ train | 90 % cov. θ / ψ test | test score − mechanistic [nats] (se) "
+            "| parameters | sampler | R-hat | wall |\n"
             "|---|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
     rows = [head]
     for ln in lines:

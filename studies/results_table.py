@@ -97,7 +97,8 @@ def _hybrid_rows():
         if r["setting"] == "train/test" and r["model"] != "mechanistic" and r["training"] == "joint":
             sc = r["scores"]
             rows.append(f"| {r['model']}, joint, trained on 0–91 s | – / {_f(sc['train']['V'])} / "
-                        f"{_f(sc['test']['V'])} | {_f(sc['train']['rmse_theta'])} / {_f(sc['test']['rmse_theta'])} "
+                        f"{_f(sc['test']['V'])} | {_f(sc['train']['rmse_theta'])} / "
+                        f"{_f(sc['test']['rmse_theta'])} "
                         f"| {_f(sc['train']['rmse_psi'])} / {_f(sc['test']['rmse_psi'])} | – | – "
                         f"| {r['seconds'] / 60:.1f} min | `hybrid_rig.jsonl` |")
     return rows
@@ -113,9 +114,11 @@ def _discovery_row():
     label = (f"+ discovered effects ({added}), NUTS refit" if d["effect"] != "none" else
              "discovery names no effect (the base model's Laplace predictive on 0–91 s, test 91–131 s)")
     return (f"| {label} | – / {_f(tr['V'])} / {_f(te['V'])} "
-            f"| {_f(tr['rmse_theta'])} / {_f(te['rmse_theta'])} | {_f(tr['rmse_psi'])} / {_f(te['rmse_psi'])} "
+            f"| {_f(tr['rmse_theta'])} / {_f(te['rmse_theta'])} "
+            f"| {_f(tr['rmse_psi'])} / {_f(te['rmse_psi'])} "
             f"| {_pct(tr['coverage90_theta'])} / {_pct(te['coverage90_theta'])} "
-            f"| {_pct(tr['coverage90_psi'])} / {_pct(te['coverage90_psi'])} | – | `discover_rig/discovery.json` |")
+            f"| {_pct(tr['coverage90_psi'])} / {_pct(te['coverage90_psi'])} "
+            "| – | `discover_rig/discovery.json` |")
 
 
 def _paper_rows():
@@ -150,7 +153,8 @@ def results_table() -> str:
     if design is not None and "median_volume_ratio_vs_published" in design:
         notes.append(f"- Experiment design (`design_gain.jsonl`, {design['duration_s']:g} s): the designed "
                      f"staircase's posterior volume is {design['median_volume_ratio_vs_published']:.2g}× the "
-                     f"published profile's (median over {len(design['truths'])} held-out truths; the design is "
+                     f"published profile's (median over {len(design['truths'])} held-out truths; "
+                     "the design is "
                      f"feasible at {_pct(design['design_feasible_fraction'])} of them).")
     return "\n".join(rows + ([""] + notes if notes else []))
 

@@ -52,15 +52,18 @@ def main(argv=None):
             first = first or wall
             line = {"scheduler": "local", "workers": w, "replicates": len(reps), "exit_code": code,
                     "wall_s": wall, "speedup_over_first": first / wall,
-                    "per_replicate_wall_s_mean": sum(r["provenance"]["wall_s"] for r in reps) / max(len(reps), 1),
+                    "per_replicate_wall_s_mean": (sum(r["provenance"]["wall_s"] for r in reps)
+                                                  / max(len(reps), 1)),
                     "throughput_s_per_replicate": wall / max(len(reps), 1),
-                    "ess_min_median": sorted(min(r["ess"].values()) for r in reps)[len(reps) // 2] if reps else None,
+                    "ess_min_median": (sorted(min(r["ess"].values()) for r in reps)[len(reps) // 2]
+                                       if reps else None),
                     "loadavg_1min_at_end": os.getloadavg()[0],
                     "note": "fresh out dir and fresh JAX compilation cache per run",
                     "provenance": provenance(__file__, argv, wall)}  # fmt: skip
             append_jsonl(args.out, line)
             print(f"{w} worker(s): {wall:.0f} s for {len(reps)} replicates "
-                  f"({line['throughput_s_per_replicate']:.0f} s each, speed-up {line['speedup_over_first']:.2f})")
+                  f"({line['throughput_s_per_replicate']:.0f} s each, "
+                  f"speed-up {line['speedup_over_first']:.2f})")
             if code != 0:
                 return code
     return 0

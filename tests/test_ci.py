@@ -17,9 +17,11 @@ def _commands(text: str) -> list[str]:
 
 def test_ci_runs_the_readme_test_command():
     readme = (REPO / "README.md").read_text()
-    block = re.search(r"```bash\n(python3 -m pip install -e \"\.\[test\]\" && python -m pytest[^\n]*)\n```", readme)
+    block = re.search(r"```bash\n(python3 -m pip install -e \"\.\[test\]\" && python -m pytest[^\n]*)\n```",
+                      readme)  # fmt: skip
     assert block is not None, "README.md has no set-up block with the test command"
-    ci = [line for line in (REPO / ".ci" / "run").read_text().splitlines() if not line.lstrip().startswith("#")]
+    lines = (REPO / ".ci" / "run").read_text().splitlines()
+    ci = [line for line in lines if not line.lstrip().startswith("#")]
     assert _commands(block.group(1)) == _commands("\n".join(ci))
 
 

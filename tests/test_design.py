@@ -12,14 +12,21 @@ import pytest
 
 from heli_uq.cli.main import main
 from heli_uq.data import read_record
-from heli_uq.design import (DesignPrior, InformationGain, Rivals, StaircaseBounds, design,
-                            search_staircase)  # fmt: skip
+from heli_uq.design import (
+    DesignPrior,
+    InformationGain,
+    Rivals,
+    StaircaseBounds,
+    design,
+    search_staircase,  # fmt: skip
+)
 from heli_uq.design.search import SearchBudget
 from heli_uq.design.staircase import mutate, random_staircase
 from heli_uq.errors import ParameterError
 
 #: The published record (``HELI_UQ_DATA``, set by conftest.py to ../shared/data when present).
-REAL_FILE = pathlib.Path(os.environ.get("HELI_UQ_DATA", "/nonexistent")) / "Lab-Helicopter_Experimental-data.csv"
+REAL_FILE = (pathlib.Path(os.environ.get("HELI_UQ_DATA", "/nonexistent"))
+             / "Lab-Helicopter_Experimental-data.csv")
 #: Relative agreement of the autodiff Fisher information with central finite differences.
 FD_RTOL = 1e-4
 #: Finite-difference step in w (log coordinates).

@@ -110,7 +110,8 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
                          (["--train", "0:20"], "--train and --test go together"),
                          (["--max-effects", "0"], "--max-effects"),
                          (["--cold-starts", "-1"], "--cold-starts"),
-                         (["--scheduler", "tcp://127.0.0.1:1"], "cannot reach a Dask scheduler")):  # fmt: skip
+                         (["--scheduler", "tcp://127.0.0.1:1"],
+                          "cannot reach a Dask scheduler")):  # fmt: skip
         code = main(["discover", str(csv), "--out", str(tmp_path / "o"), *argv])
         err = capsys.readouterr().err.strip().splitlines()
         assert code == 2 and len(err) == 1 and needle in err[0], (argv, err)

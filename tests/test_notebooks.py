@@ -26,7 +26,8 @@ def _code(nb):
 
 
 def test_the_list_of_notebooks_is_the_folder():
-    assert sorted(NAMES) == sorted(p.stem for p in NOTEBOOKS_DIR.glob("*.py") if not p.stem.startswith(("_", "execute")))
+    sources = [p.stem for p in NOTEBOOKS_DIR.glob("*.py") if not p.stem.startswith(("_", "execute"))]
+    assert sorted(NAMES) == sorted(sources)
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -17,7 +17,8 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 from studies.__main__ import STUDIES, main, run  # noqa: E402
 
-REAL_FILE = pathlib.Path(os.environ.get("HELI_UQ_DATA", "/nonexistent")) / "Lab-Helicopter_Experimental-data.csv"
+REAL_FILE = (pathlib.Path(os.environ.get("HELI_UQ_DATA", "/nonexistent"))
+             / "Lab-Helicopter_Experimental-data.csv")
 #: Studies executed elsewhere in the tests.
 ELSEWHERE = ("notebooks",)
 
@@ -44,7 +45,8 @@ def test_the_study_runs_at_its_quick_size(study, tmp_path):
         pytest.skip("the rig record is not available (set HELI_UQ_DATA)")
     stored = {p: p.stat().st_mtime for p in (REPO / "studies" / "results").rglob("*") if p.is_file()}
     assert run("quick", [study.name], root=tmp_path) == 0
-    rows = [json.loads(line) for line in (tmp_path / "results" / "studies_quick.jsonl").read_text().splitlines()]
+    text = (tmp_path / "results" / "studies_quick.jsonl").read_text()
+    rows = [json.loads(line) for line in text.splitlines()]
     assert [(r["study"], r["status"]) for r in rows] == [(study.name, 0)]
     written = [p for p in tmp_path.rglob("*") if p.is_file() and p.name != "studies_quick.jsonl"]
     assert written, "the study wrote nothing under its output root"

@@ -13,7 +13,8 @@ from scipy import stats
 from heli_uq.errors import ParameterError
 from heli_uq.probability.priors import X0_ANGLE_SD
 
-__all__ = ["rank_bins", "thinned_ranks", "rank_covered", "expected_interval_coverage", "summarise", "RANK_BINS"]
+__all__ = ["rank_bins", "thinned_ranks", "rank_covered", "expected_interval_coverage", "summarise",
+           "RANK_BINS"]  # fmt: skip
 
 #: Bins of the rank histograms (chi-square test and figure).
 RANK_BINS = 10
@@ -113,12 +114,14 @@ def summarise(reps: list[dict], bins: int = RANK_BINS) -> dict:
         interval of the draws covers the truth), ``coverage90_rank`` (fraction whose rank
         lies in the central 90 % of ranks, :func:`rank_covered`: unbiased for any number
         of draws), ``chi2_pvalue`` (chi-square test of uniform ranks over ``bins`` bins;
-        each replicate's rank binned on its own ``0..L``) and, when recorded, ``ess_median``, the coverage averaged over the quantities overall
+        each replicate's rank binned on its own ``0..L``) and, when recorded,
+        ``ess_median``; the coverage averaged over the quantities overall
         (``coverage90_mean_over_quantities``) and split by the noise level
         (``coverage90_sigma_below_x0_sd`` / ``..._above_...``: replicates with
         ``sigma < X0_ANGLE_SD`` or not; interval and rank coverage),
         ``coverage90_interval_expected_iid`` (:func:`expected_interval_coverage` for the
-        draws of one replicate, when the settings are recorded), and sampler statistics (``divergences_total``,
+        draws of one replicate, when the settings are recorded), and sampler statistics
+        (``divergences_total``,
         ``mean_steps``, ``wall_s_mean`` [s], ``step_size_mean``, ``map_grad_max_max``).
     """
     if not reps:
@@ -153,8 +156,9 @@ def summarise(reps: list[dict], bins: int = RANK_BINS) -> dict:
     low = [r for r in reps if r["sigma"] < X0_ANGLE_SD]
     high = [r for r in reps if r["sigma"] >= X0_ANGLE_SD]
     for label, group in (("sigma_below_x0_sd", low), ("sigma_above_x0_sd", high)):
-        summary[f"coverage90_{label}"] = {"replicates": len(group), "mean_over_quantities": mean_cov(group),
-                                          "rank_mean_over_quantities": mean_cov(group, rank=True)}  # fmt: skip
+        summary[f"coverage90_{label}"] = {
+            "replicates": len(group), "mean_over_quantities": mean_cov(group),
+            "rank_mean_over_quantities": mean_cov(group, rank=True)}  # fmt: skip
     summary["coverage90_mean_over_quantities"] = mean_cov(reps)
     summary["coverage90_rank_mean_over_quantities"] = mean_cov(reps, rank=True)
     settings = reps[0].get("settings") or {}

@@ -84,7 +84,8 @@ def design(out, bounds: StaircaseBounds, *, prior: DesignPrior | None = None,
     u_pub, why = _published_inputs(published, bounds)
     pub = value_of(u_pub) if u_pub is not None else None
     if pub is not None and not math.isfinite(pub):
-        pub, why = None, "the published profile is infeasible here (failed simulation or pitch outside the envelope)"
+        pub, why = None, ("the published profile is infeasible here (failed simulation or pitch outside "
+                          "the envelope)")
     baselines["published"] = {"value": pub, **({"skipped": why} if why else {})}
     gain_pub = None if pub is None else result.value - pub
     summary = {

@@ -101,8 +101,8 @@ def recover_equation(torque, points: dict, weights=None, *, project: str = "u", 
         ``features`` (the library used), ``inclusion`` (name -> probability),
         ``selected`` (names with inclusion >= ``include``), ``coefficients`` (selected
         name -> ``{mean, ci95}`` of its coefficient [N m per feature unit] when the
-        selected expression is fitted to each draw by least squares), ``r2`` (weighted R^2 of the selected features'
-        least-squares fit to the posterior-mean torque) and ``draws``.
+        selected expression is fitted to each draw by least squares), ``r2`` (weighted R^2
+        of the selected features' least-squares fit to the posterior-mean torque) and ``draws``.
     """
     torque = np.atleast_2d(np.asarray(torque, dtype=float))
     u = np.stack([np.asarray(points["u_theta"], float), np.asarray(points["u_psi"], float)])

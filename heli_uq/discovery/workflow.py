@@ -88,8 +88,9 @@ class Budget:
 
     ``n_starts``: MAP starts of the base model after the one from the shipped rig fit;
     ``cold_starts``: starts of a candidate beyond its warm ones
-    (:func:`~heli_uq.discovery.candidates.warm_starts`); ``draws``: Laplace draws per candidate; ``pair_top``: how
-    many of the best singles are paired; ``chains, warmup, samples``: the NUTS refit;
+    (:func:`~heli_uq.discovery.candidates.warm_starts`); ``draws``: Laplace draws per
+    candidate; ``pair_top``: how many of the best singles are paired; ``chains, warmup,
+    samples``: the NUTS refit;
     ``nuts_before``: the base model gets a NUTS posterior too (else its Laplace
     approximation is *before*); ``newton_steps``: of each MAP polish; ``max_tree_depth``:
     of the NUTS refit (a stiff friction model can otherwise spend 2^8 leapfrog steps per

@@ -18,8 +18,8 @@ import optax
 from heli_uq.errors import ParameterError
 from heli_uq.inference.density import LogDensity
 
-__all__ = ["MapResult", "find_map", "newton_polish", "laplace", "leave_saddles", "HESSIAN_STEP", "NEWTON_STEPS",
-           "NEWTON_TOL", "NEWTON_EXTEND", "NEWTON_SCOUT_STEPS"]  # fmt: skip
+__all__ = ["MapResult", "find_map", "newton_polish", "laplace", "leave_saddles", "HESSIAN_STEP",
+           "NEWTON_STEPS", "NEWTON_TOL", "NEWTON_EXTEND", "NEWTON_SCOUT_STEPS"]  # fmt: skip
 
 #: Relative step of the finite-difference Hessian (of the analytic gradient).
 HESSIAN_STEP = 1e-5

@@ -140,6 +140,19 @@ def test_torques_flagged_input_only_read_neither_angles_nor_rates():
         assert not np.any(np.asarray(jx)) and not np.any(np.asarray(jv)), term.label
 
 
+def test_the_dead_band_declares_one_start_per_interval_between_voltage_levels():
+    """Levels 0.5, 0.8 and 1.2 V on the yaw motor (signs and repeats ignored): one start
+    below them all and one between each two; the pitch motor's levels give the pitch
+    dead band's; terms without a grid declare none."""
+    u = np.array([[1.3, 0.8], [1.3, -0.5], [1.4, 1.2], [1.4, 0.8], [1.3, 0.0]])
+    model = build_model(["yaw:deadband", "pitch:deadband", "yaw:torque_offset"])
+    grid = model.start_grid(u)
+    assert set(grid) == {"delta_yaw", "delta_pitch"}
+    np.testing.assert_allclose(grid["delta_yaw"], [0.25, 0.65, 1.0])
+    np.testing.assert_allclose(grid["delta_pitch"], [0.65, 1.35])
+    assert build_model([]).start_grid(u) == {}
+
+
 def test_effect_names_carry_the_axis_and_the_bare_name():
     model = parse_effects(",".join(ALL_EFFECTS))
     names = {p.name: p for t in model.effects for p in t.parameters()}

@@ -42,8 +42,14 @@ from heli_uq.simulation.solver import default_substeps
 
 __all__ = ["Start", "prepare_start", "least_squares_fit", "start_parameters", "map_starts",
            "initial_draws", "whitening", "LSQ_SIGMA", "SUBSTEP_MARGIN", "MAX_SUBSTEPS",
-           "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX", "NETWORK_MAP_DECREMENT_MAX", "PoorBasin"]  # fmt: skip
+           "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX", "NETWORK_MAP_DECREMENT_MAX", "PoorBasin",
+           "grid_start", "GRID_STEPS", "GRID_GAIN"]  # fmt: skip
 
+#: Levenberg-Marquardt steps that fit the other coordinates to each value of a start grid
+#: (:func:`grid_start`).
+GRID_STEPS = 10
+#: A grid start is added when its screened cost is below this fraction of the first start's.
+GRID_GAIN = 0.9
 #: Residual scales [rad] (theta, psi) of the least-squares stage that precedes the MAP.
 LSQ_SIGMA = (0.02, 0.1)
 #: Substeps are chosen for this multiple of the MAP's stiffness (the posterior spreads).
@@ -150,6 +156,41 @@ def _x0_guess(problem: Problem) -> np.ndarray:
     return guess
 
 
+def grid_start(problem: Problem, params: dict, *, log=None) -> dict | None:
+    """One more MAP start for a model whose terms declare a start grid, or None.
+
+    For each free parameter of :meth:`HeliModel.start_grid` on the training window's
+    voltages (a dead band's width: one value between each two voltage levels), ``params``
+    with that parameter at each grid value is fitted by :data:`GRID_STEPS`
+    Levenberg-Marquardt steps (which refit the gains to it), and the value with the lowest
+    cost kept.  The start is returned if its cost is below :data:`GRID_GAIN` times that of
+    ``params`` screened the same way, i.e. if the grid found a better basin than the one
+    ``params`` starts in.
+    """
+    grid = {k: v for k, v in problem.model.start_grid(problem.u[: problem.n_train]).items()
+            if k in problem.coords.free}  # fmt: skip
+    if not grid:
+        return None
+    short = least_squares_fit(problem, max_steps=GRID_STEPS)
+    x0 = _x0_guess(problem)
+
+    def cost(trial):
+        value = float(short(problem.coords.from_physical(trial), x0)[2])
+        return value if np.isfinite(value) else np.inf
+
+    own = cost(params)
+    out = dict(params)
+    for name, values in grid.items():
+        costs = [cost({**params, name: float(v)}) for v in values]
+        best = int(np.argmin(costs))
+        if costs[best] < GRID_GAIN * own:
+            out[name] = float(values[best])
+            if log is not None:
+                log(f"MAP grid start: {name} = {values[best]:.4g} (best of {len(values)} screened; "
+                    f"cost {costs[best]:.4g} against {own:.4g} at {params[name]:.4g})")  # fmt: skip
+    return out if out != params else None
+
+
 def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, guesses=(), *,
                log=None) -> list:  # fmt: skip
     """Starting points (flat vectors) of the MAP, each refined by :func:`least_squares_fit`.
@@ -159,7 +200,8 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
     starts next to the optimum).
     Guesses: ``guesses`` (dicts of physical values, e.g. a fit of a smaller model; missing
     names take the model's start values), then the model's start values (Table 1 for the
-    mechanics), its defaults where valid (Table 2) and ``n - 2`` perturbations.  After the
+    mechanics), its defaults where valid (Table 2) and ``n - 2`` perturbations; for a
+    model whose terms declare a start grid, one more from :func:`grid_start`.  After the
     least-squares stage the residual scale starts at the residual RMS and the AR(1)
     correlation time at the one of the residuals' lag-1 autocorrelation, so the MAP search
     starts close to its optimum.
@@ -175,11 +217,14 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
     out = []
     t0 = time.perf_counter()
     warm = [{**base, **{k: float(v) for k, v in g.items() if k in base}, **fixed} for g in guesses][:n]
-    for k, params in enumerate(warm + start_parameters(coords.free, base, n, seed, alternative=alternative,
-                                                       linear=linear)[: max(n - len(warm), 0)]):  # fmt: skip
+    starts = warm + start_parameters(coords.free, base, n, seed, alternative=alternative,
+                                     linear=linear)[: max(n - len(warm), 0)]  # fmt: skip
+    screened = grid_start(problem, starts[0], log=log)
+    starts += [screened] if screened is not None else []
+    for k, params in enumerate(starts):
         z, x0, cost = (np.asarray(a) for a in fit(coords.from_physical(params), _x0_guess(problem)))
         if log is not None:
-            log(f"MAP start {k + 1}/{n}: least-squares cost {float(cost):.6g} "
+            log(f"MAP start {k + 1}/{len(starts)}: least-squares cost {float(cost):.6g} "
                 f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
         resid = np.asarray(sim(jnp.asarray(z), jnp.asarray(x0)))[:, :2] - problem.y[: problem.n_train]
         if not np.all(np.isfinite(resid)):

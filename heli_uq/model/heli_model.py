@@ -149,6 +149,14 @@ class HeliModel(eqx.Module):
         return HeliModel(self.mechanics, tuple(t.adapt_to(u, y, dt) for t in self.inputs),
                          tuple(t.adapt_to(u, y, dt) for t in self.torques))
 
+    def start_grid(self, u) -> dict:
+        """Every term's :meth:`~heli_uq.model.terms.base.AbstractTerm.start_grid` for
+        voltages ``u`` (N, 2) [V]: ``{parameter name: values}``."""
+        out = {}
+        for term in self.terms:
+            out.update(term.start_grid(u))
+        return out
+
     def input_voltages(self, p, u):
         """The voltages after every input map, a pair ``(u_theta, u_psi)`` [V]."""
         u = (u[0], u[1])

@@ -76,6 +76,16 @@ class AbstractTerm(eqx.Module):
         ``dt`` [s]); most terms need nothing from the record and return themselves."""
         return self
 
+    def start_grid(self, u) -> dict:
+        """Values of this term's parameters that separate the basins of a fit to a record
+        with voltages ``u`` (N, 2) [V]: ``{name: array of values}``, none by default.
+
+        A term whose fit has a local optimum per interval of a parameter (a dead band's
+        width between two voltage levels the record holds) declares one value in each, and
+        the MAP search screens them (:func:`heli_uq.inference.start.map_starts`).
+        """
+        return {}
+
     def stiffness(self, p, inertia) -> float:
         """Largest rate [1/s] this term adds to the linearised dynamics (0 if negligible).
 

@@ -170,8 +170,9 @@ def _key(effects) -> str:
 
 #: Version of a stored candidate fit; a stored fit of another version is fitted again
 #: (2: the Laplace draws are importance-resampled before scoring, or the MAP's plug-in
-#: predictive when Pareto k rejects them).
-FIT_VERSION = 2
+#: predictive when Pareto k rejects them; 3: a term's start grid adds a MAP start, e.g.
+#: a dead band between the record's voltage levels).
+FIT_VERSION = 3
 
 
 def _signature(record: Experiment, task: FitTask) -> str:

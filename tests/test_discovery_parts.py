@@ -114,9 +114,14 @@ def trap_record():
 def test_a_nested_candidate_in_a_poor_basin_is_refitted_from_effect_off(trap_record, monkeypatch):
     """A pitch dead band started at 5 V (beyond every pitch voltage: no pitch thrust) ends
     ~11 nats below the base model it nests; with no slack, the fallback refits it from
-    "dead band off" and keeps that MAP, which is the base's up to the new prior term."""
+    "dead band off" and keeps that MAP, which is the base's up to the new prior term.
+    The dead band's start grid would give this fit a start below the pitch voltages and
+    rescue it on its own; it is switched off here, so that the trap stands for any poor
+    basin a grid does not reach."""
     import heli_uq.discovery.candidates as candidates
+    import heli_uq.inference.least_squares as least_squares
 
+    monkeypatch.setattr(least_squares, "GRID_GAIN", 0.0)  # never add the grid start
     rec, base = trap_record
     effects = ("pitch:deadband",)
     trapped = candidates.FitTask(rec, (0.0, 14.0), (14.0, 20.0), effects,

@@ -11,6 +11,7 @@ from heli_uq.inference.density import log_density_setup as log_density_setup
 from heli_uq.inference.emcee_sampler import run_emcee as run_emcee
 from heli_uq.inference.laplace_sampler import importance_resample as importance_resample
 from heli_uq.inference.laplace_sampler import run_laplace as run_laplace
+from heli_uq.inference.least_squares import least_squares_fit as least_squares_fit
 from heli_uq.inference.levenberg import masked_least_squares as masked_least_squares
 from heli_uq.inference.manifest import run_manifest as run_manifest
 from heli_uq.inference.map import MapResult as MapResult
@@ -20,7 +21,6 @@ from heli_uq.inference.nuts import TARGET_ACCEPT as TARGET_ACCEPT
 from heli_uq.inference.nuts import SamplerRun as SamplerRun
 from heli_uq.inference.nuts import run_nuts as run_nuts
 from heli_uq.inference.start import Start as Start
-from heli_uq.inference.start import least_squares_fit as least_squares_fit
 from heli_uq.inference.start import prepare_start as prepare_start
 from heli_uq.inference.start import start_parameters as start_parameters
 from heli_uq.inference.train import Training as Training

@@ -1,11 +1,10 @@
 """The shared start of every sampler: multi-start least squares, the MAP, the Laplace
 covariance, and the number of solver substeps the fitted parameters need.
 
-1. **Least squares** (:func:`least_squares_fit`): Levenberg-Marquardt on the sampling
-   coordinates and the initial state, residuals from the one likelihood with fixed
-   scales :data:`LSQ_SIGMA` plus Gaussian prior terms.  A Gauss-Newton method handles the
-   very different scales of the parameters in a few steps, where a quasi-Newton method
-   on the full posterior stalls.  Started from :func:`start_parameters`.
+1. **Least squares** (:func:`heli_uq.inference.least_squares.least_squares_fit`):
+   Levenberg-Marquardt on the sampling coordinates and the initial state.  Started from
+   :func:`start_parameters`, and from one more start where a term's start grid finds a
+   better basin (:func:`heli_uq.inference.least_squares.grid_start`).
 2. **MAP** on the full log posterior (:func:`heli_uq.inference.map.find_map`): damped
    Newton steps from the least-squares fits (optionally after L-BFGS).
 3. **Substeps.**  A stiff effect (sharp friction) needs more RK4 substeps the larger its
@@ -32,26 +31,17 @@ import numpy as np
 
 from heli_uq.errors import ParameterError
 from heli_uq.inference.density import LogDensity, constrain_draws, init_sites, log_density_setup
-from heli_uq.inference.levenberg import masked_least_squares
+from heli_uq.inference.least_squares import grid_start, least_squares_fit, x0_guess
 from heli_uq.inference.map import NEWTON_STEPS, find_map, laplace, leave_saddles, newton_polish
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.model.terms.neural_torque import NeuralTorque
-from heli_uq.probability.likelihood import whitened_residuals
 from heli_uq.probability.problem import Problem
 from heli_uq.simulation.solver import default_substeps
 
-__all__ = ["Start", "prepare_start", "least_squares_fit", "start_parameters", "map_starts",
-           "initial_draws", "whitening", "LSQ_SIGMA", "SUBSTEP_MARGIN", "MAX_SUBSTEPS",
-           "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX", "NETWORK_MAP_DECREMENT_MAX", "PoorBasin",
-           "grid_start", "GRID_STEPS", "GRID_GAIN"]  # fmt: skip
+__all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "initial_draws", "whitening",
+           "SUBSTEP_MARGIN", "MAX_SUBSTEPS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
+           "NETWORK_MAP_DECREMENT_MAX", "PoorBasin"]  # fmt: skip
 
-#: Levenberg-Marquardt steps that fit the other coordinates to each value of a start grid
-#: (:func:`grid_start`).
-GRID_STEPS = 10
-#: A grid start is added when its screened cost is below this fraction of the first start's.
-GRID_GAIN = 0.9
-#: Residual scales [rad] (theta, psi) of the least-squares stage that precedes the MAP.
-LSQ_SIGMA = (0.02, 0.1)
 #: Substeps are chosen for this multiple of the MAP's stiffness (the posterior spreads).
 SUBSTEP_MARGIN = 2.0
 #: Most substeps :func:`prepare_start` gives a problem.  A MAP that needs more (friction
@@ -71,8 +61,6 @@ MAP_DECREMENT_MAX = 1e-3
 #: The same for a model with a neural term, whose capped polish stops short of the optimum
 #: (within ~1 posterior sd): its MAP only starts NUTS, which adapts its mass matrix.
 NETWORK_MAP_DECREMENT_MAX = 1.0
-#: Residual of a sample whose simulation failed in the least-squares stage.
-FAILED_RESIDUAL = 1e6
 #: Rounds of redrawing initial sampler positions whose log density is not finite.
 MAX_INIT_ROUNDS = 100
 
@@ -111,86 +99,6 @@ def _alternative_values(problem: Problem) -> dict:
     return out
 
 
-def least_squares_fit(problem: Problem, *, max_steps: int = 100):
-    """A compiled ``fit(z0, x0, sigma=LSQ_SIGMA) -> (z, x0, cost)``: Levenberg-Marquardt of
-    all coordinates ``z`` and the free initial-state entries on the training window, the
-    residuals of (theta, psi) divided by ``sigma`` [rad] (module docstring)."""
-    coords = problem.coords
-    n, d = problem.n_train, coords.dim
-    y = jnp.asarray(problem.y[:n])
-    mu, sd = (jnp.asarray(a) for a in coords.prior_moments())
-    x0_priors = [problem.priors.x0_prior(name, problem.x0_center) for name in X0_NAMES]
-    x0_mu = jnp.asarray([p.a for p in x0_priors])
-    x0_sd = jnp.asarray([p.b if p.free else 1.0 for p in x0_priors])
-
-    def residuals(v, sigma):
-        z, x_init = v[:d], v[d:]
-        phys = coords.to_physical(z)
-        sol = problem.solve(phys, x_init, n, gradients="autodiff")
-        r = whitened_residuals(sol.ys[:, :2], y, sigma).ravel()
-        r = jnp.where(jnp.isfinite(r), r, FAILED_RESIDUAL)
-        w = coords.prior_coordinates(z)
-        return jnp.concatenate([r, (w - mu) / sd, (x_init - x0_mu) / x0_sd])
-
-    fixed = jnp.asarray([False] * d + [not p.free for p in x0_priors])
-
-    @jax.jit
-    def compiled(z0, x0, sigma):
-        v0 = jnp.concatenate([jnp.asarray(z0), jnp.asarray(x0)])
-        v, cost = masked_least_squares(lambda v: residuals(v, sigma), v0, fixed, v0, max_steps)
-        return v[:d], v[d:], cost
-
-    def fit(z0, x0, sigma=LSQ_SIGMA):
-        return compiled(z0, x0, jnp.asarray(sigma, dtype=jnp.float64))
-
-    return fit
-
-
-def _x0_guess(problem: Problem) -> np.ndarray:
-    """First measured angles and zero rates; fixed initial-state priors keep their value."""
-    guess = np.concatenate([problem.y[0], np.zeros(2)])
-    for i, name in enumerate(X0_NAMES):
-        prior = problem.priors.x0_prior(name, problem.x0_center)
-        if not prior.free or problem.priors.x0[name] is not None:
-            guess[i] = prior.a
-    return guess
-
-
-def grid_start(problem: Problem, params: dict, *, log=None) -> dict | None:
-    """One more MAP start for a model whose terms declare a start grid, or None.
-
-    For each free parameter of :meth:`HeliModel.start_grid` on the training window's
-    voltages (a dead band's width: one value between each two voltage levels), ``params``
-    with that parameter at each grid value is fitted by :data:`GRID_STEPS`
-    Levenberg-Marquardt steps (which refit the gains to it), and the value with the lowest
-    cost kept.  The start is returned if its cost is below :data:`GRID_GAIN` times that of
-    ``params`` screened the same way, i.e. if the grid found a better basin than the one
-    ``params`` starts in.
-    """
-    grid = {k: v for k, v in problem.model.start_grid(problem.u[: problem.n_train]).items()
-            if k in problem.coords.free}  # fmt: skip
-    if not grid:
-        return None
-    short = least_squares_fit(problem, max_steps=GRID_STEPS)
-    x0 = _x0_guess(problem)
-
-    def cost(trial):
-        value = float(short(problem.coords.from_physical(trial), x0)[2])
-        return value if np.isfinite(value) else np.inf
-
-    own = cost(params)
-    out = dict(params)
-    for name, values in grid.items():
-        costs = [cost({**params, name: float(v)}) for v in values]
-        best = int(np.argmin(costs))
-        if costs[best] < GRID_GAIN * own:
-            out[name] = float(values[best])
-            if log is not None:
-                log(f"MAP grid start: {name} = {values[best]:.4g} (best of {len(values)} screened; "
-                    f"cost {costs[best]:.4g} against {own:.4g} at {params[name]:.4g})")  # fmt: skip
-    return out if out != params else None
-
-
 def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, guesses=(), *,
                log=None) -> list:  # fmt: skip
     """Starting points (flat vectors) of the MAP, each refined by :func:`least_squares_fit`.
@@ -222,7 +130,7 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
     screened = grid_start(problem, starts[0], log=log)
     starts += [screened] if screened is not None else []
     for k, params in enumerate(starts):
-        z, x0, cost = (np.asarray(a) for a in fit(coords.from_physical(params), _x0_guess(problem)))
+        z, x0, cost = (np.asarray(a) for a in fit(coords.from_physical(params), x0_guess(problem)))
         if log is not None:
             log(f"MAP start {k + 1}/{len(starts)}: least-squares cost {float(cost):.6g} "
                 f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip

@@ -35,8 +35,7 @@ from heli_uq.errors import ParameterError
 from heli_uq.identifiability.fisher import fisher_information, fit_likelihood
 from heli_uq.identifiability.profiles import THRESHOLD_95, classify, profile_likelihood
 from heli_uq.identifiability.structural import ParameterVector, random_points, structural_analysis
-from heli_uq.inference.least_squares import least_squares_fit
-from heli_uq.inference.start import start_parameters
+from heli_uq.inference import least_squares_fit, start_parameters
 from heli_uq.io import atomic_write_text
 from heli_uq.log import progress_log
 from heli_uq.model.heli_model import HeliModel

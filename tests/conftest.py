@@ -21,6 +21,13 @@ if "HELI_UQ_DATA" not in os.environ and _SHARED_DATA.is_dir():
     os.environ["HELI_UQ_DATA"] = str(_SHARED_DATA)
 
 
+def pytest_collection_modifyitems(config, items):
+    """Slow tests first, each group of tests kept in its order.  ``--dist loadgroup`` hands
+    tests to the workers in collection order, so a long test collected last would run
+    while the other worker sits idle; started first, the many short tests fill the end."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 # Shared synthetic posterior problem (compiling the model is the expensive part, so the
 # emcee and NUTS tests share one problem and one MAP start).
 SYNTHETIC_NOISE = 0.003  # rad: the true residual sd of the shared synthetic record

@@ -18,10 +18,10 @@ from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model
 from heli_uq.simulation import synthetic_experiment
 from heli_uq.simulation.synthetic import ENCODER_QUANTUM
 
-#: Small effort: warm starts only, 40 Laplace draws, no pairs, NUTS 2 x (100 + 100) with
+#: Small effort: warm starts only, 40 Laplace draws, no pairs, NUTS 2 x (50 + 50) with
 #: trees of at most 32 leapfrog steps (on these 21 s fitting windows most draws reach the
 #: limit at any depth; the refit is a smoke-sized end-to-end run, not a converged one).
-TINY = Budget(n_starts=2, cold_starts=0, draws=40, pair_top=0, chains=2, warmup=100, samples=100,
+TINY = Budget(n_starts=2, cold_starts=0, draws=40, pair_top=0, chains=2, warmup=50, samples=50,
               max_tree_depth=5)
 #: Friction, whose stiff fit is the slowest candidate, is left out here; the confusion
 #: study (studies/discovery_confusion.py) runs the whole vocabulary, null records included.

@@ -100,7 +100,9 @@ def test_off_start_switches_the_new_effects_off_next_to_the_current_fit():
     assert off == {**current, "k_yaw": OFF_FRACTION * probe["k_yaw"], "psi_0_yaw": 0.0, "T_0_pitch": 0.0}
 
 
-@pytest.fixture(scope="module")
+# Session scope and one xdist group: the tests that use it run on one worker, which fits
+# the base model once (a module fixture is fitted again after tests of other modules).
+@pytest.fixture(scope="session")
 def trap_record():
     """A 20 s rig-like record of the base model, and the base model's MAP on 0-14 s."""
     from heli_uq.discovery.candidates import FitTask, fitted_predictive
@@ -111,6 +113,8 @@ def trap_record():
     return rec, base
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("trap_record")
 def test_a_nested_candidate_in_a_poor_basin_is_refitted_from_effect_off(trap_record, monkeypatch):
     """A pitch dead band started at 5 V (beyond every pitch voltage: no pitch thrust) ends
     ~11 nats below the base model it nests; with no slack, the fallback refits it from
@@ -137,6 +141,8 @@ def test_a_nested_candidate_in_a_poor_basin_is_refitted_from_effect_off(trap_rec
     assert candidates.score_fitted(fitted, guarded)["off_start"] is True
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("trap_record")
 def test_an_untrusted_laplace_gives_the_plug_in_predictive_at_the_map(trap_record, monkeypatch):
     """Where Pareto k rejects the importance weights, every predictive draw is the MAP: the
     simulations are one and the same, the band is the residual noise's, and the record
@@ -163,6 +169,8 @@ def test_an_untrusted_laplace_gives_the_plug_in_predictive_at_the_map(trap_recor
     assert candidates.score_fitted(fitted, task)["laplace"]["predictive"] == "map"
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("trap_record")
 @pytest.mark.parametrize("fallback_fails", [False, True])
 def test_a_start_far_above_the_current_fit_is_abandoned_for_the_fallback(trap_record, monkeypatch,
                                                                          fallback_fails):  # fmt: skip

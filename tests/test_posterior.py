@@ -141,19 +141,27 @@ def test_overlapping_windows_and_bad_draws_are_clear_errors(synthetic_problem, t
 TREE_DEPTH = 2
 
 
+def _cli_record():
+    """The record of both CLI end-to-end tests.  They run in one xdist group with the same
+    windows (``run``'s 91/131 split of 2 s is 0-1.39 s), so the second reuses the first's
+    compiled log density from the persistent cache."""
+    return synthetic_experiment(duration=2.0, seed=4, noise_std=(0.003, 0.003))
+
+
 @pytest.mark.slow
+@pytest.mark.xdist_group("cli_record")
 def test_cli_sample_end_to_end(tmp_path, capsys):
-    record = synthetic_experiment(duration=2.0, seed=4, noise_std=(0.003, 0.003))
+    record = _cli_record()
     csv = tmp_path / "rec.csv"
     record.to_csv(csv)
     out = tmp_path / "post"
-    code = main(["sample", "--data", str(csv), "--train", "0:1.5", "--test", "1.5:2",
+    code = main(["sample", "--data", str(csv), "--train", "0:1.39", "--test", "1.39:2",
                  "--chains", "1", "--warmup", "40", "--draws", "30", "--error", "iid",
                  "--max-tree-depth", str(TREE_DEPTH), "--no-progress", "--out", str(out)])  # fmt: skip
     assert code == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["max_tree_depth"] == TREE_DEPTH
-    assert summary["windows"]["test"]["n_samples"] == 50
+    assert summary["windows"]["test"]["n_samples"] == 61
     assert set(summary["coverage90_test"]) == {"theta", "psi"}
     idata = az.from_netcdf(out / "posterior.nc")
     assert idata.posterior.sizes["draw"] == 30
@@ -162,7 +170,7 @@ def test_cli_sample_end_to_end(tmp_path, capsys):
     assert (out / "bands.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "m" in (out / "summary.csv").read_text()
     capsys.readouterr()  # forget the successful run's output (arviz logs 1-chain warnings)
-    for bad in (["--train", "0:1.5", "--test", "1:2"], ["--draws", "0"],
+    for bad in (["--train", "0:1.39", "--test", "1:2"], ["--draws", "0"],
                 ["--window", "5:9"], ["--fix", "m=lognormal:1:1"],
                 ["--target-accept", "1.0"], ["--max-tree-depth", "0"]):  # fmt: skip
         code = main(["sample", "--data", str(csv), "--out", str(out), *bad])
@@ -184,12 +192,13 @@ def test_ar1_model_uses_the_correlation_time(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("cli_record")
 def test_cli_run_main_job_end_to_end(tmp_path, capsys):
     """``heli-uq run`` on a record file: figures, simulations and the posterior stage with the
     documented train/test split (first 91/131 of the record for training)."""
     from heli_uq.cli.run import RUN_TRAIN_FRACTION
 
-    record = synthetic_experiment(duration=2.0, seed=5, noise_std=(0.003, 0.003))
+    record = _cli_record()
     csv = tmp_path / "rec.csv"
     record.to_csv(csv)
     out = tmp_path / "out"

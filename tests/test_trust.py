@@ -322,6 +322,7 @@ def _one_line_error(err: str, *needles: str) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("cli_1s_record")  # one worker: the second reuses the compiled programs
 def test_unconverged_run_warns_strict_fails_and_resume_checks_its_manifest(tmp_path, capsys):
     """A deliberately unconverged tiny run (1 s record, 5 warm-up steps): the warning
     block, --strict, summary.json's health; then --resume with the same settings, with
@@ -406,6 +407,7 @@ INTERRUPT_LATENCY_S = 10.0
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("cli_1s_record")  # one worker: the second reuses the compiled programs
 def test_sigint_stops_a_cli_run_within_seconds(tmp_path):
     import os
     import signal

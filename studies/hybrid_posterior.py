@@ -39,6 +39,8 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from _study import FIGURES, RESULTS, add_run_arguments, append_jsonl, provenance  # noqa: E402
 
 ROWS = ("mechanistic", "effect", "u", "u,x,v", "equation")
+#: Hidden units of the stored network rows; another size is labelled with it.
+HIDDEN = 4
 
 
 def _parse_window(text):
@@ -90,7 +92,9 @@ def main(argv=None):
     ap.add_argument("--test", default="91:131")
     ap.add_argument("--rows", nargs="+", default=list(ROWS), choices=ROWS)
     ap.add_argument("--effect", default=None, help="AXIS:EFFECT[,...] of the named-effect row")
-    ap.add_argument("--hidden", type=int, default=4)
+    ap.add_argument("--hidden", type=int, default=HIDDEN)
+    ap.add_argument("--target-accept", type=float, default=None,
+                    help="NUTS target acceptance (default: the package's)")
     ap.add_argument("--project", choices=["u", "1,u", "none"], default="u",
                     help="what the FNN(u) output is made orthogonal to (none: the gains and the "
                          "network trade off; the row's gain_trade_off shows by how much)")
@@ -120,12 +124,15 @@ def main(argv=None):
     blocks_test = input_blocks(np.asarray(record.u)[test_slice], record.dt)
     effect = args.effect or _discovered_effect(RESULTS / "discover_rig" / "discovery.json")
     nn = {"effect": "neural_torque", "axis": "yaw", "hidden": args.hidden}
+    # a network of another size than the stored rows' is its own row, run and figure
+    sized = "" if args.hidden == HIDDEN else f" (h = {args.hidden})"
     models = {"mechanistic": ("mechanistic", build_model()),
               "effect": (f"+ {effect}", parse_effects(effect)) if effect else None,
-              "u": ("+ FNN(u)" + ("" if args.project == "u" else f" (project {args.project})"),
+              "u": ("+ FNN(u)" + sized + ("" if args.project == "u" else f" (project {args.project})"),
                     build_model([{**nn, "inputs": "u", "project": args.project}])),
-              "u,x,v": ("+ FNN(u,x,v)", build_model([{**nn, "inputs": "u,x,v"}]))}  # fmt: skip
+              "u,x,v": ("+ FNN(u,x,v)" + sized, build_model([{**nn, "inputs": "u,x,v"}]))}  # fmt: skip
     runs = pathlib.Path(args.runs)
+    accept = {} if args.target_accept is None else {"target_accept": args.target_accept}
     base_scores, fnn_u = None, None
     lines = []
     for row in args.rows:
@@ -152,10 +159,11 @@ def main(argv=None):
         label += ", every weight" if every else ""
         print(f"{label}: {args.sampler} ({args.chains} x ({args.warmup} + {args.draws}))", flush=True)
         projected = "" if row != "u" or args.project == "u" else f"_{args.project}"
-        run_dir = runs / (row.replace(",", "") + projected + every)
+        size = "" if args.hidden == HIDDEN or row not in ("u", "u,x,v") else f"_h{args.hidden}"
+        run_dir = runs / (row.replace(",", "") + projected + size + every)
         idata, summary = sample_posterior(record, run_dir, model=model, train=train,
                                           test=test, error="iid", sampler=args.sampler,
-                                          network_posterior=args.nn_posterior,
+                                          network_posterior=args.nn_posterior, **accept,
                                           chains=args.chains, warmup=args.warmup,
                                           draws=args.draws, progress=False)  # fmt: skip
         metrics, scores = _row_metrics(idata, summary, base_scores, blocks_test, test_slice)
@@ -163,11 +171,12 @@ def main(argv=None):
             base_scores = scores
         if row == "u":
             fnn_u = idata
-            plot_network_torque(idata, "yaw", FIGURES / f"hybrid_fnn_u_torque{every}.png")
+            plot_network_torque(idata, "yaw", FIGURES / f"hybrid_fnn_u_torque{size}{every}.png")
         line = {"row": label, "model": model.label, "train": args.train, "test": args.test,
                 **metrics, "seconds": time.perf_counter() - t0,
                 "sampler": {"name": args.sampler, "chains": args.chains, "warmup": args.warmup,
                             "draws": args.draws, "pareto_k": summary.get("pareto_k"),
+                            "target_accept": summary.get("target_accept"),
                             "health": summary["health"]["flags"]}}  # fmt: skip
         if recovered is not None:
             line["recovered"] = recovered

@@ -149,7 +149,7 @@ def test_training_learns_a_hidden_smooth_torque():
     assert v_base > BASE_FACTOR * floor
     for project, trainable, factor in (("none", None, FLOOR_FACTOR_FROZEN),
                                        ("u", "all", FLOOR_FACTOR_JOINT)):  # fmt: skip
-        item = {"effect": "neural_torque", "axis": "yaw", "project": project}
+        item = {"effect": "neural_torque", "axis": "yaw", "hidden": 4, "project": project}
         problem = make_problem(rec, model=build_model([item]), error="iid")
         result = train(problem, dict(RIG_FIT), RIG_FIT_X0, trainable=trainable)
         assert result.v_start == pytest.approx(v_base, rel=1e-9)  # the network starts silent
@@ -161,7 +161,8 @@ def test_training_learns_a_hidden_smooth_torque():
 
 def test_network_gradient_matches_finite_differences():
     rec = _record()
-    model = build_model(["yaw:neural_torque"]).adapted(rec.u, rec.y, rec.dt)
+    item = {"effect": "neural_torque", "axis": "yaw", "hidden": 4}  # names of units 0-3 below
+    model = build_model([item]).adapted(rec.u, rec.y, rec.dt)
     p = model.complete({**RIG_FIT, **_random_weights(model)})
     u, n = rec.u[:300], 300
 

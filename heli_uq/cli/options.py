@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 
 from heli_uq.errors import ParameterError
+from heli_uq.model.terms.neural_torque import DEFAULT_HIDDEN as NEURAL_DEFAULT_HIDDEN
 
 __all__ = ["Formatter", "add_model_options", "model_from_args", "add_prior_options",
            "priors_from_args", "check_positive", "out_dir", "positive_float", "EFFECTS_HELP",
@@ -41,8 +42,8 @@ def _effects_help() -> str:
 EFFECTS_HELP = _effects_help()
 
 
-#: Hidden units of ``--model hybrid`` unless ``--hidden`` says otherwise.
-DEFAULT_HIDDEN = 4
+#: Hidden units of ``--model hybrid`` unless ``--hidden`` says otherwise (the term's default).
+DEFAULT_HIDDEN = NEURAL_DEFAULT_HIDDEN
 
 
 def add_model_options(p) -> None:
@@ -63,10 +64,11 @@ def add_model_options(p) -> None:
                         "rates (u,x,v) (default: u)")
     p.add_argument("--hidden", type=int, default=None,
                    help=f"hybrid: hidden units per network (default: {DEFAULT_HIDDEN}; the paper "
-                        "used 16)")
+                        "used 16; NUTS over every weight mixes at 2 on the rig record, not at 4)")
     p.add_argument("--nn-posterior", choices=["full", "last-layer"], default=None,
-                   help="hybrid: 'full' (default) samples every weight (NUTS saturates its trees: "
-                        "hours on the rig record); 'last-layer' trains the network, fixes its "
+                   help="hybrid: 'full' (default) samples every weight (2 units: 10 min for 4 "
+                        "chains on 0-91 s of the rig record; wider networks saturate NUTS's "
+                        "trees); 'last-layer' trains the network, fixes its "
                         "hidden layer and samples its output weights with the physics (fast and "
                         "converged, but its band holds the true curve less often)")
     p.add_argument("--nn-axes", default=None, metavar="yaw|pitch|pitch,yaw",

@@ -37,7 +37,7 @@ def plot_network_torque(idata, axis: str, path=None, *, truth=None) -> Figure:
     lo, med, hi = np.quantile(torque, [0.05, 0.5, 0.95], axis=0)
     post = idata.posterior
     by_time = f"{dim}_time" in post.coords
-    fig = new_figure((7.5, 4.2))
+    fig = new_figure((7.5, 4.8))
     ax = fig.subplots()
     if by_time:
         x = np.asarray(post[f"{dim}_time"])
@@ -59,7 +59,9 @@ def plot_network_torque(idata, axis: str, path=None, *, truth=None) -> Figure:
     ax.set_ylabel(f"network torque on {axis} [N m]")
     ax.set_title(f"Hybrid posterior: the network's torque on {axis} "
                  f"({torque.shape[0]} draws; projected off the linear gains)", fontsize="medium")  # fmt: skip
-    ax.legend(loc="best", fontsize="small", framealpha=0.8)
+    # below the axes: over them it hid a cluster of pairs whatever the corner
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=2, fontsize="small", frameon=False)
+    fig.subplots_adjust(bottom=0.27)
     if path is not None:
         save_figure(fig, path)
     return fig

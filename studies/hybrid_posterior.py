@@ -125,7 +125,8 @@ def main(argv=None):
     effect = args.effect or _discovered_effect(RESULTS / "discover_rig" / "discovery.json")
     nn = {"effect": "neural_torque", "axis": "yaw", "hidden": args.hidden}
     # a network of another size than the stored rows' is its own row, run and figure
-    sized = "" if args.hidden == HIDDEN else f" (h = {args.hidden})"
+    other_size = args.hidden != HIDDEN
+    sized = f" (h = {args.hidden})" if other_size else ""
     models = {"mechanistic": ("mechanistic", build_model()),
               "effect": (f"+ {effect}", parse_effects(effect)) if effect else None,
               "u": ("+ FNN(u)" + sized + ("" if args.project == "u" else f" (project {args.project})"),
@@ -159,7 +160,7 @@ def main(argv=None):
         label += ", every weight" if every else ""
         print(f"{label}: {args.sampler} ({args.chains} x ({args.warmup} + {args.draws}))", flush=True)
         projected = "" if row != "u" or args.project == "u" else f"_{args.project}"
-        size = "" if args.hidden == HIDDEN or row not in ("u", "u,x,v") else f"_h{args.hidden}"
+        size = f"_h{args.hidden}" if other_size and row in ("u", "u,x,v") else ""
         run_dir = runs / (row.replace(",", "") + projected + size + every)
         idata, summary = sample_posterior(record, run_dir, model=model, train=train,
                                           test=test, error="iid", sampler=args.sampler,

@@ -12,7 +12,7 @@ import math
 from pathlib import Path
 
 from heli_uq.errors import ParameterError
-from heli_uq.model.terms.neural_torque import DEFAULT_HIDDEN as NEURAL_DEFAULT_HIDDEN
+from heli_uq.model.terms.neural_torque import DEFAULT_HIDDEN  # of --model hybrid's networks
 
 __all__ = ["Formatter", "add_model_options", "model_from_args", "add_prior_options",
            "priors_from_args", "check_positive", "out_dir", "positive_float", "EFFECTS_HELP",
@@ -40,10 +40,6 @@ def _effects_help() -> str:
 
 
 EFFECTS_HELP = _effects_help()
-
-
-#: Hidden units of ``--model hybrid`` unless ``--hidden`` says otherwise (the term's default).
-DEFAULT_HIDDEN = NEURAL_DEFAULT_HIDDEN
 
 
 def add_model_options(p) -> None:

@@ -17,8 +17,11 @@ from the ones before it (``tests/test_layout.py`` checks this)::
     cli/                    the ``heli-uq`` command
 
 **JAX configuration.**  Importing :mod:`heli_uq` (any submodule) enables float64 in JAX
-(``jax_enable_x64``); it is the package's only global setting.  The ``heli-uq`` commands
-that sample also give XLA one host device per chain, before JAX starts.
+(``jax_enable_x64``) and, if JAX is not imported yet, has jitted functions take the
+arrays they close over (a record) as arguments instead of constants, so that records of
+one length share compiled programs (:mod:`heli_uq._jax_config`).  These are the
+package's only global settings.  The ``heli-uq`` commands that sample also give XLA one
+host device per chain, before JAX starts.
 """
 
 from heli_uq import _jax_config  # noqa: F401  (float64 before any array exists)

@@ -1,5 +1,27 @@
-"""Enable float64 in JAX before any array is created (imported first by ``heli_uq``)."""
+"""JAX settings made before any array is created (imported first by ``heli_uq``).
 
-import jax
+* ``jax_enable_x64``: float64 throughout.
+* Arrays a jitted function closes over (a record's voltages and angles, the prior
+  location of its initial angles) are passed to the compiled program as arguments
+  instead of being embedded in it (``JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS``, JAX's coming
+  default, and ``JAX_EMBEDDED_CONSTANTS_MAX_BYTES=0``; see
+  https://docs.jax.dev/en/latest/internals/constants.html).  Records of one length then
+  share compiled programs: a second record, an SBC replicate, a discovery run on another
+  record or a test reads them from the persistent compilation cache
+  (:func:`heli_uq.executor.use_compilation_cache`) instead of compiling them again, and
+  a program without a record embedded in it compiles faster.  JAX reads the first
+  setting when it is imported, so it is set here only where JAX is not imported yet
+  (a user's own value is kept); otherwise records are embedded as before, which changes
+  compile times, not results.
+"""
+
+import os
+import sys
+
+if "jax" not in sys.modules:
+    os.environ.setdefault("JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS", "true")
+    os.environ.setdefault("JAX_EMBEDDED_CONSTANTS_MAX_BYTES", "0")
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)

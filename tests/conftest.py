@@ -3,8 +3,11 @@
 import os
 import pathlib
 
+# isort: off
+import heli_uq  # noqa: F401  (first: its JAX settings act only if JAX is not imported yet)
 import jax
 import pytest
+# isort: on
 
 jax.config.update("jax_enable_x64", True)
 # Many tests compile the same programs (one NUTS kernel per run, a resumed run, the CLI):

@@ -39,7 +39,10 @@ def _record(effects, values, seed):
                                 quantum=ENCODER_QUANTUM)  # fmt: skip
 
 
+# The two end-to-end runs share one worker: their records have one length and their
+# candidates one set of models, so the second reads the first's compiled programs.
 @pytest.mark.slow
+@pytest.mark.xdist_group("discover_30s")
 def test_discover_names_a_hidden_yaw_offset_and_closes_the_gap(tmp_path):
     rec = _record(["yaw:torque_offset"], {"T_0_yaw": HIDDEN_T_0}, seed=11)
     res = discover(rec, tmp_path, train=(0.0, SPLIT), test=(SPLIT, SECONDS), budget=TINY,
@@ -66,6 +69,7 @@ def test_discover_names_a_hidden_yaw_offset_and_closes_the_gap(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("discover_30s")
 def test_discover_says_none_without_a_hidden_effect_and_reuses_fits(tmp_path):
     rec = _record([], {}, seed=12)
     kwargs = dict(train=(0.0, SPLIT), test=(SPLIT, SECONDS), budget=TINY, candidates=CANDIDATES,

@@ -163,6 +163,7 @@ BASE_V_MAX = 1e-3
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("hybrid_posterior")  # the record of hybrid_run: its programs
 def test_last_layer_with_a_fixed_mass_starts_the_base_fit_from_the_rig_fit(tmp_path):
     """With m fixed (plain log coordinates), two cold starts of the base model's MAP both
     ended at V = 3.1 rad^2 on this record and the Laplace covariance came out non-finite.
@@ -192,6 +193,7 @@ PROJECTED_LINEAR = 1e-9
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("hybrid_posterior")  # the record of hybrid_run: its programs
 def test_the_projection_removes_the_gain_network_trade_off(tmp_path):
     """The same record and hybrid with and without the default projection: without it
     the yaw gain K_psi_psi and the network's part along u_psi are anti-correlated over the

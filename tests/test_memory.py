@@ -22,7 +22,7 @@ print(code, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024)
 
 @pytest.mark.slow
 def test_emcee_at_defaults_stays_under_the_memory_cap(tmp_path):
-    record = synthetic_experiment(duration=3.0, seed=8, noise_std=(0.005, 0.005))
+    record = synthetic_experiment(duration=1.0, seed=8, noise_std=(0.005, 0.005))
     csv = record.to_csv(tmp_path / "rec.csv")
     out = tmp_path / "post"
     cmd = [sys.executable, "-m", "heli_uq.cli", "sample", "--sampler", "emcee", "--error", "iid",

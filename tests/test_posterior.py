@@ -250,3 +250,17 @@ def test_importance_resampling_undoes_a_too_wide_laplace(synthetic_start):
     assert wide_info["ess"] < good_info["ess"] <= RESAMPLE_DRAWS
     assert 1 <= wide_info["distinct"] < good_info["distinct"] <= RESAMPLE_DRAWS
     assert good["z"].shape == (RESAMPLE_DRAWS, len(synthetic_start.problem.coords.sampled_names))
+
+
+def test_records_of_one_length_share_compiled_programs():
+    """The log density of two records of one length (other inputs, angles, initial pitch
+    and median pitch) lowers to one program: the record reaches it as arguments
+    (``heli_uq._jax_config``), so the second record's run reads the first's compiled
+    programs from the persistent cache.  A record of another length is another program."""
+    programs = {}
+    for seed, duration in ((1, 1.5), (2, 1.5), (1, 2.0)):
+        rec = synthetic_experiment(duration=duration, seed=seed, x0=(-0.3 - 0.2 * seed, 0.1 * seed, 0, 0))
+        density = log_density_setup(make_problem(rec, error="iid"))
+        programs[seed, duration] = jax.jit(density.potential).lower(density.x_init).as_text()
+    assert programs[1, 1.5] == programs[2, 1.5]
+    assert programs[1, 1.5] != programs[1, 2.0]

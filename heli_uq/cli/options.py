@@ -185,13 +185,15 @@ def add_trust_options(p) -> None:
 
 
 def report_health(summary: dict, strict: bool) -> int:
-    """Print the warning block of a failed health check on stderr; the exit status
-    (:data:`EXIT_UNHEALTHY` under ``strict``, else 0)."""
+    """Print the health notes and the warning block of a failed health check on stderr;
+    the exit status (:data:`EXIT_UNHEALTHY` under ``strict``, else 0)."""
     import sys
 
     from heli_uq.output.health import format_warnings
 
     health = summary["health"]
+    for note in health.get("notes", ()):
+        print(f"note: {note}", file=sys.stderr)
     if health["ok"]:
         return 0
     print(format_warnings(health), file=sys.stderr)

@@ -10,14 +10,17 @@ with the measured value and the limit.  Checks, and the flag they raise:
   limit; a chain whose adapted step size collapsed (below :data:`STEP_SIZE_MIN` in the
   whitened coordinates, where the posterior has unit scale, or :data:`STEP_SIZE_RATIO_MIN`
   of another chain's); E-BFMI below :data:`~heli_uq.output.diagnostics.BFMI_MIN`; a MAP
-  whose Newton decrement is above :data:`MAP_DECREMENT_MAX` (the start of the sampler is
-  not the optimum); emcee's own warnings (chains shorter than 50 autocorrelation times,
-  low acceptance).
+  whose Newton decrement is above :data:`MAP_DECREMENT_MAX`, for a sampler whose draws
+  are centred on the MAP (Laplace, or a run that does not name its sampler); emcee's own
+  warnings (chains shorter than 50 autocorrelation times, low acceptance).
+* **Notes** (no flag): the same MAP check for NUTS and emcee, whose MAP only starts the
+  chains and whitens them: their draws are judged by the checks above, so a MAP that
+  stopped short of the optimum (a network's capped polish) is reported, not failed.
 * **unphysical**: posterior-predictive draws whose simulation leaves the physical range
   (:mod:`heli_uq.simulation.physical`: |pitch| > 90 deg or non-finite); the fixed-step
   solver off the adaptive reference by more than the tolerance.
 
-The result, ``{"ok", "flags", "warnings"}``, goes into ``summary.json`` (``health``), into
+The result, ``{"ok", "flags", "warnings", "notes"}``, goes into ``summary.json`` (``health``), into
 the title of ``bands.png`` (which then claims no coverage), and into the CLI's warning
 block; ``--strict`` turns a failed check into a non-zero exit.
 """
@@ -30,7 +33,8 @@ from heli_uq.inference.start import MAP_DECREMENT_MAX as _START_DECREMENT_MAX
 from heli_uq.output.diagnostics import BFMI_MIN, ESS_MIN, RHAT_MAX
 
 __all__ = ["check_health", "format_warnings", "TREE_DEPTH_SATURATION_MAX", "STEP_SIZE_MIN",
-           "STEP_SIZE_RATIO_MIN", "MAP_DECREMENT_MAX", "UNCONVERGED", "UNPHYSICAL"]  # fmt: skip
+           "STEP_SIZE_RATIO_MIN", "MAP_DECREMENT_MAX", "MAP_STARTS_ONLY", "UNCONVERGED",
+           "UNPHYSICAL"]  # fmt: skip
 
 #: Largest fraction of draws at the tree-depth limit: more means the trajectories are cut
 #: short (a collapsed step size or a ridge), and the chain explores by a random walk.
@@ -44,6 +48,9 @@ STEP_SIZE_RATIO_MIN = 1e-2
 #: Largest Newton decrement of a converged MAP, unless the run states its own
 #: (``map_decrement_max``: a hybrid model's, :mod:`heli_uq.inference.start`).
 MAP_DECREMENT_MAX = _START_DECREMENT_MAX
+#: Samplers whose draws are judged on their own (the MAP only starts them): a MAP
+#: that stopped short is a note for these, a failed check for any other.
+MAP_STARTS_ONLY = ("nuts", "emcee")
 UNCONVERGED = "UNCONVERGED"
 UNPHYSICAL = "unphysical"
 
@@ -83,12 +90,21 @@ def _sampler_warnings(s: dict) -> list[str]:
                            f"{STEP_SIZE_RATIO_MIN:g} of another chain's ({largest:.2g})")  # fmt: skip
     if _bad(s.get("bfmi_min"), BFMI_MIN, False):
         out.append(f"E-BFMI {s['bfmi_min']:.2g} < {BFMI_MIN}")
-    limit = s.get("map_decrement_max") or MAP_DECREMENT_MAX
-    if _bad(s.get("map_decrement"), limit, True):
-        out.append(f"the MAP did not converge (Newton decrement {s['map_decrement']:.2g} > "
-                   f"{limit:g})")  # fmt: skip
+    if not _map_starts_only(s):
+        out.extend(_map_warnings(s))
     out.extend(str(w) for w in (s.get("warnings") or []))  # emcee's own
     return out
+
+
+def _map_starts_only(s: dict) -> bool:
+    return s.get("sampler") in MAP_STARTS_ONLY
+
+
+def _map_warnings(s: dict) -> list[str]:
+    limit = s.get("map_decrement_max") or MAP_DECREMENT_MAX
+    if not _bad(s.get("map_decrement"), limit, True):
+        return []
+    return [f"the MAP did not converge (Newton decrement {s['map_decrement']:.2g} > {limit:g})"]
 
 
 def _physical_warnings(s: dict, solver_tol: float | None) -> list[str]:
@@ -105,7 +121,8 @@ def _physical_warnings(s: dict, solver_tol: float | None) -> list[str]:
 
 
 def check_health(summary: dict, *, solver_tol: float | None = None) -> dict:
-    """``{"ok": bool, "flags": [...], "warnings": [...]}`` of a ``summary.json`` record.
+    """``{"ok": bool, "flags": [...], "warnings": [...], "notes": [...]}`` of a
+    ``summary.json`` record (``notes``: reported, not failed; module docstring).
 
     Parameters
     ----------
@@ -118,7 +135,11 @@ def check_health(summary: dict, *, solver_tol: float | None = None) -> dict:
     sampler = _sampler_warnings(summary)
     physical = _physical_warnings(summary, solver_tol)
     flags = ([UNCONVERGED] if sampler else []) + ([UNPHYSICAL] if physical else [])
-    return {"ok": not flags, "flags": flags, "warnings": sampler + physical}
+    notes = []
+    if _map_starts_only(summary):
+        notes = [f"{w}; it only started {summary['sampler']}, whose draws are judged by the other checks"
+                 for w in _map_warnings(summary)]  # fmt: skip
+    return {"ok": not flags, "flags": flags, "warnings": sampler + physical, "notes": notes}
 
 
 def format_warnings(health: dict) -> str:

@@ -35,7 +35,7 @@ from heli_uq.probability.priors import PriorSet
 from heli_uq.probability.problem import make_problem
 from heli_uq.simulation.reference import solver_error
 
-__all__ = ["sample_posterior", "parameter_summary", "SOLVER_TOL"]
+__all__ = ["sample_posterior", "bands_figure", "parameter_summary", "SOLVER_TOL"]
 
 #: The fixed-step solver must stay within this angle error [rad] of the adaptive reference
 #: at the posterior mean; a larger error is reported as a warning.
@@ -197,19 +197,25 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     save_netcdf(idata, out / "posterior.nc")
     atomic_write_text(out / "summary.csv", summary_table(idata).to_csv())
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=1, default=_jsonable))
+    save_figure(bands_figure(idata, summary), out / "bands.png")
+    return idata, summary
+
+
+def bands_figure(idata, summary: dict):
+    """The posterior-predictive bands of a run (``bands.png``), from its InferenceData and
+    its ``summary.json`` record (coverage per window, health flags, sampler, error model
+    and model label), so a saved run's figure can be drawn again."""
     pp = idata.posterior_predictive["y_pred"]
     cd = idata.constant_data
     cov = {w: summary["windows"][w]["coverage90"] for w in summary["windows"]}
-    fig = plot_bands(
+    return plot_bands(
         np.asarray(cd["time"]), np.asarray(pp).reshape((-1,) + pp.shape[2:]),
         np.asarray(cd["y_obs"]), train_mask=np.asarray(cd["train_mask"]),
         test_mask=np.asarray(cd["test_mask"]), coverage=cov,
         health=", ".join(summary["health"]["flags"]),
-        title=(f"Posterior predictive ({sampler}, {error} errors, {problem.model.label}): "
-               f"{pathlib.Path(problem.source).name}"),
+        title=(f"Posterior predictive ({summary['sampler']}, {summary['error_model']} errors, "
+               f"{summary['model_label']}): {pathlib.Path(idata.posterior.attrs['source']).name}"),
     )  # fmt: skip
-    save_figure(fig, out / "bands.png")
-    return idata, summary
 
 
 def _jsonable(obj):

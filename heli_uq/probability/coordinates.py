@@ -205,7 +205,11 @@ class Coordinates:
         return self.names[1:] if self.marginal_scale else self.names
 
     def _inertia(self, p, axis):
-        return yaw_inertia(p, self.yaw_theta_ref) if axis == "yaw" else pitch_inertia(p)
+        if axis == "pitch":
+            return pitch_inertia(p)
+        # the record's reference pitch as an array element: an argument of the compiled
+        # program, not a constant in it (records of one length share programs; _jax_config)
+        return yaw_inertia(p, jnp.asarray([self.yaw_theta_ref])[0])
 
     # ------------------------------------------------------------------ maps
     def to_physical(self, z) -> dict:

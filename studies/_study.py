@@ -51,13 +51,14 @@ def provenance(script: str, argv, wall_s: float) -> dict:
 
 def add_run_arguments(ap, name: str, *, chains: int, warmup: int, draws: int) -> None:
     """The NUTS size (``--chains``, ``--warmup``, ``--draws``) and where a posterior study
-    keeps its runs (``--runs``, default ``runs/<name>``) and result lines (``--out``,
-    default ``results/<name>.jsonl``)."""
+    keeps its runs (``--runs``, default ``runs/<name>``), result lines (``--out``,
+    default ``results/<name>.jsonl``) and figures (``--figures``, default ``figures``)."""
     ap.add_argument("--chains", type=int, default=chains)
     ap.add_argument("--warmup", type=int, default=warmup)
     ap.add_argument("--draws", type=int, default=draws)
     ap.add_argument("--runs", default=str(ROOT / "runs" / name))
     ap.add_argument("--out", default=str(RESULTS / f"{name}.jsonl"))
+    ap.add_argument("--figures", default=str(FIGURES))
 
 
 def append_jsonl(path, row: dict) -> pathlib.Path:

@@ -36,7 +36,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _study import FIGURES, RESULTS, add_run_arguments, append_jsonl, provenance  # noqa: E402
+from _study import RESULTS, add_run_arguments, append_jsonl, provenance  # noqa: E402
 
 ROWS = ("mechanistic", "effect", "u", "u,x,v", "equation")
 #: Hidden units of the stored network rows; another size is labelled with it.
@@ -172,7 +172,8 @@ def main(argv=None):
             base_scores = scores
         if row == "u":
             fnn_u = idata
-            plot_network_torque(idata, "yaw", FIGURES / f"hybrid_fnn_u_torque{size}{every}.png")
+            figure = pathlib.Path(args.figures) / f"hybrid_fnn_u_torque{size}{every}.png"
+            plot_network_torque(idata, "yaw", figure)
         line = {"row": label, "model": model.label, "train": args.train, "test": args.test,
                 **metrics, "seconds": time.perf_counter() - t0,
                 "sampler": {"name": args.sampler, "chains": args.chains, "warmup": args.warmup,

@@ -35,7 +35,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _study import FIGURES, add_run_arguments, append_jsonl, provenance  # noqa: E402
+from _study import add_run_arguments, append_jsonl, provenance  # noqa: E402
 
 #: The hidden yaw thrust [N m/V^2] (as in ``tests/test_hybrid_posterior.py``).
 K_Q = 0.05
@@ -114,7 +114,7 @@ def main(argv=None):
             truth = _projected_truth(term, params, pairs, np.asarray(record.u)[:n_train]) / true_inertia
             accel = np.asarray(post[f"nn_torque_yaw{suffix}"]).reshape(-1, len(pairs)) / inertia
             inside[key] = _inside(accel, truth)
-        plot_network_torque(idata, "yaw", FIGURES / f"hybrid_unseen_{posterior}.png")
+        plot_network_torque(idata, "yaw", pathlib.Path(args.figures) / f"hybrid_unseen_{posterior}.png")
         te = summary["windows"]["test"]
         line = {"posterior": posterior, "seconds_record": args.seconds, "train": list(train),
                 "test": list(test), "k_q": K_Q, "hidden": args.hidden,

@@ -18,9 +18,13 @@
 import os
 import sys
 
+#: The environment that makes records arguments of the compiled programs (JAX's own
+#: defaults, ``"false"`` and ``"32"``, embed them).
+RECORDS_AS_ARGUMENTS = {"JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS": "true", "JAX_EMBEDDED_CONSTANTS_MAX_BYTES": "0"}
+
 if "jax" not in sys.modules:
-    os.environ.setdefault("JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS", "true")
-    os.environ.setdefault("JAX_EMBEDDED_CONSTANTS_MAX_BYTES", "0")
+    for key, value in RECORDS_AS_ARGUMENTS.items():
+        os.environ.setdefault(key, value)
 
 import jax  # noqa: E402
 

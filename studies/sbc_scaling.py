@@ -29,12 +29,14 @@ import time
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from _study import RESULTS, append_jsonl, provenance  # noqa: E402
 
+from heli_uq._jax_config import RECORDS_AS_ARGUMENTS  # noqa: E402
+
 HERE = pathlib.Path(__file__).resolve().parent
 #: The replicate of the stored SBC run (studies/results/sbc_v2), shortened by --draws.
 SBC_ARGS = ("--h-sd", "0", "--chains", "1", "--warmup", "200", "--x0-prior", "generator", "--duration", "5")
 #: How a run's records reach the compiled programs: the JAX settings of each.
 RECORDS = {
-    "arguments": {"JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS": "true", "JAX_EMBEDDED_CONSTANTS_MAX_BYTES": "0"},
+    "arguments": RECORDS_AS_ARGUMENTS,
     "embedded": {"JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS": "false", "JAX_EMBEDDED_CONSTANTS_MAX_BYTES": "32"},
 }
 

@@ -179,17 +179,25 @@ def test_a_network_that_blows_up_is_a_rejected_proposal():
     assert potential_with_output_weights(1e300) == np.inf
 
 
+def _fixed_mass_priors(model, values):
+    from heli_uq.model.prior import Prior
+    from heli_uq.probability import PriorSet
+
+    return PriorSet.default(model).updated(model, {"m": Prior("fixed", values["m"])}, where="test")
+
+
 @pytest.mark.slow
+@pytest.mark.xdist_group("hybrid_posterior")  # one record and model: shared programs
 def test_last_layer_fixes_the_trained_hidden_layer_and_samples_the_output_weights():
     """--nn-posterior last-layer: training from the base model's MAP lowers V, every hidden
     weight and bias is fixed at its trained value, the output weights stay free."""
     from heli_uq.output.last_layer import last_layer_setup
-    from heli_uq.probability import PriorSet
 
-    rec, _, _ = _truth_record()
+    rec, _, values = _truth_record()
     model = build_model([{"effect": "neural_torque", "axis": "yaw", "hidden": 2}])
-    priors, guesses, info = last_layer_setup(rec, (0.0, 10.0), None, model=model,
-                                             priors=PriorSet.default(model), error="iid")  # fmt: skip
+    priors = _fixed_mass_priors(model, values)
+    priors, guesses, info = last_layer_setup(rec, (0.0, SECONDS), None, model=model, priors=priors,
+                                             error="iid")  # fmt: skip
     assert info["v_trained"] <= info["v_base"]
     hidden = [n for n in model.names if n.startswith(("nn_W_", "nn_b_"))]
     outputs = [n for n in model.names if n.startswith("nn_w_")]
@@ -197,31 +205,7 @@ def test_last_layer_fixes_the_trained_hidden_layer_and_samples_the_output_weight
     for n in hidden:
         assert not priors.params[n].free and priors.params[n].a == pytest.approx(guesses[0][n])
     assert all(priors.params[n].free for n in outputs)
-    assert all(priors.params[n].free for n in ("m", "K_psi_psi"))
-
-
-@pytest.mark.slow
-@pytest.mark.xdist_group("hybrid_posterior")  # the record and model of the projection test
-def test_cli_hybrid_end_to_end_stores_the_torque_on_the_record_pairs(tmp_path):
-    """``heli-uq sample --model hybrid`` at a tiny size (last layer, Laplace): exit 0, the
-    network torque stored on a named grid of exactly the record's voltage pairs, its
-    convergence reported beside the weights', and the bands figure written."""
-    rec, _, values = _truth_record()
-    path = rec.to_csv(tmp_path / "rec.csv")
-    out = tmp_path / "out"
-    code = main(["sample", "--data", str(path), "--model", "hybrid", "--hidden", "2",
-                 "--nn-posterior", "last-layer", "--sampler", "laplace", "--error", "iid",
-                 "--fix", f"m={values['m']}", "--chains", "2", "--draws", "50", "--no-progress",
-                 "--out", str(out)])  # fmt: skip
-    assert code == 0
-    post = az.from_netcdf(out / "posterior.nc").posterior
-    assert post["nn_torque_yaw"].dims == ("chain", "draw", "nn_point_yaw")
-    stored = set(zip(post["nn_point_yaw_u_theta"].values, post["nn_point_yaw_u_psi"].values))
-    assert stored == {tuple(q) for q in np.asarray(rec.u)}
-    assert np.all(np.isfinite(post["nn_torque_yaw"].values))
-    summary = json.loads((out / "summary.json").read_text())
-    assert {"rhat_max_network_torque", "rhat_max_network_weights"} <= set(summary)
-    assert any(f.suffix == ".png" and f.stat().st_size > 0 for f in out.iterdir())
+    assert all(priors.params[n].free for n in ("J_s", "K_psi_psi"))
 
 
 #: Without the projection the yaw gain and the network's linear part must trade off at
@@ -235,37 +219,51 @@ BASE_V_MAX = 1e-3
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("hybrid_posterior")  # the record of hybrid_run: its programs
-def test_the_projection_removes_the_gain_network_trade_off(tmp_path):
-    """The same record and hybrid with and without the default projection: without it
-    the yaw gain K_psi_psi and the network's part along u_psi are anti-correlated over the
-    draws and the gain's sd exceeds that of their sum (what the data fix); with it the
-    network's linear part is zero and the gain carries the whole linear torque.
+@pytest.mark.xdist_group("hybrid_posterior")  # one record and model: shared programs
+def test_cli_hybrid_end_to_end_and_the_projection_removes_the_gain_network_trade_off(tmp_path):
+    """``heli-uq sample --model hybrid`` at a tiny size (last layer, Laplace, the default
+    projection) and the same hybrid without the projection, through the library.
+
+    The CLI run exits 0 and stores the network torque on a named grid of exactly the
+    record's voltage pairs, its convergence beside the weights', and the bands figure.
+    Without the projection the yaw gain K_psi_psi and the network's part along u_psi are
+    anti-correlated over the draws and the gain's sd exceeds that of their sum (what the
+    data fix); with it the network's linear part is zero and the gain carries the whole
+    linear torque.
 
     The mass m is fixed at the truth (plain log coordinates).  With it, two cold starts of
     the base model's MAP both ended at V = 3.1 rad^2 on this record and the Laplace
     covariance came out non-finite; started from the rig fit too, the base fit is good and
     the last-layer posterior finite."""
-    from heli_uq.model.prior import Prior
     from heli_uq.output.posterior_study import sample_posterior
-    from heli_uq.probability import PriorSet
 
     rec, _, values = _truth_record()
+    path = rec.to_csv(tmp_path / "rec.csv")
+    code = main(["sample", "--data", str(path), "--model", "hybrid", "--hidden", "2",
+                 "--nn-posterior", "last-layer", "--sampler", "laplace", "--error", "iid",
+                 "--fix", f"m={values['m']}", "--chains", "2", "--draws", "100", "--no-progress",
+                 "--out", str(tmp_path / "u")])  # fmt: skip
+    assert code == 0
+    hybrid = build_model([{"effect": "neural_torque", "axis": "yaw", "hidden": 2, "project": "none"}])
+    sample_posterior(rec, tmp_path / "none", model=hybrid, priors=_fixed_mass_priors(hybrid, values),
+                     sampler="laplace", error="iid", chains=2, warmup=0, draws=100, progress=False,
+                     n_starts=1, network_posterior="last-layer")  # fmt: skip
     trade = {}
     for project in ("none", "u"):
-        hybrid = build_model([{"effect": "neural_torque", "axis": "yaw", "hidden": 2, "project": project}])
-        priors = PriorSet.default(hybrid).updated(hybrid, {"m": Prior("fixed", values["m"])}, where="test")
-        _, summary = sample_posterior(rec, tmp_path / project, model=hybrid, priors=priors,
-                                      sampler="laplace", error="iid", chains=2, warmup=0, draws=100,
-                                      progress=False, n_starts=1, network_posterior="last-layer")  # fmt: skip
+        summary = json.loads((tmp_path / project / "summary.json").read_text())
         assert summary["last_layer"]["v_base"] < BASE_V_MAX
         assert summary["last_layer"]["v_trained"] <= summary["last_layer"]["v_base"]
+        assert {"rhat_max_network_torque", "rhat_max_network_weights"} <= set(summary)
         post = az.from_netcdf(tmp_path / project / "posterior.nc").posterior
         assert "m" not in post  # fixed: not a sampled variable
         assert np.all(np.isfinite(post["K_psi_psi"].values)) and float(post["K_psi_psi"].std()) > 0
-        saved = json.loads((tmp_path / project / "summary.json").read_text())
-        trade[project] = saved["gain_trade_off"]["yaw"]
+        assert post["nn_torque_yaw"].dims == ("chain", "draw", "nn_point_yaw")
+        stored = set(zip(post["nn_point_yaw_u_theta"].values, post["nn_point_yaw_u_psi"].values))
+        assert stored == {tuple(q) for q in np.asarray(rec.u)}
+        assert np.all(np.isfinite(post["nn_torque_yaw"].values))
+        trade[project] = summary["gain_trade_off"]["yaw"]
         assert set(trade[project]) == {"u_theta", "u_psi"}
+    assert (tmp_path / "u" / "bands.png").stat().st_size > 0
     free, projected = trade["none"]["u_psi"], trade["u"]["u_psi"]
     assert free["gain"] == "K_psi_psi"
     assert free["corr"] < TRADE_OFF_CORR

@@ -21,7 +21,7 @@ from heli_uq.simulation import synthetic_experiment
 K_Q = 0.05
 #: Pairs whose truth must lie inside the network torque's central 90 % interval.
 COVERED_FRACTION = 0.8
-#: Correlation of the posterior-mean network torque with the truth over the pairs.
+#: Correlation of the posterior-mean network acceleration with the truth over the pairs.
 CURVE_CORRELATION = 0.9
 #: A short record of random 0.5-3 s voltage steps: many distinct voltage pairs.
 SECONDS = 20.0
@@ -35,6 +35,16 @@ def _truth_record():
     return rec, model, values
 
 
+#: The long tier's NUTS run over every weight (2 chains): at 2 x (100 + 100), the size CI
+#: could afford, R-hat on the torque was 1.17; at this size 1.06 (measured 2026-11-26).
+LONG_WARMUP, LONG_DRAWS = 400, 300
+#: The chains must agree on the network's acceleration to this R-hat (Gelman's classic
+#: 1.1): the strict 1.01 of the health checks is not reached at this size, and the run is
+#: flagged UNCONVERGED (its trees fill depth 8); with the mass fixed (plain log coordinates,
+#: before 2026-11-26) the same run stood at 1.9.
+RHAT_TORQUE_LONG = 1.1
+
+
 # Session scope: ``--dist loadgroup`` sends both tests to one worker, but not necessarily
 # one after the other, and a module fixture would be computed again after other modules.
 @pytest.fixture(scope="session")
@@ -43,11 +53,11 @@ def hybrid_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("hybrid")
     path = rec.to_csv(tmp / "rec.csv")
     out = tmp / "out"
-    # m fixed at the truth pins the common inertia scale, so the torque [N m] is identified
+    # every inertia free: the identifiable coordinates integrate the common scale out, and
+    # the record fixes the network's torque over the yaw inertia, an acceleration
     code = main(["sample", "--data", str(path), "--model", "hybrid", "--nn-posterior", "full",
-                 "--hidden", "2", "--error", "iid",
-                 "--fix", f"m={values['m']}", "--chains", "2", "--warmup", "100", "--draws", "100",
-                 "--no-progress", "--out", str(out)])  # fmt: skip
+                 "--hidden", "2", "--error", "iid", "--chains", "2", "--warmup", str(LONG_WARMUP),
+                 "--draws", str(LONG_DRAWS), "--no-progress", "--out", str(out)])  # fmt: skip
     return code, out, rec, model, values
 
 
@@ -55,29 +65,39 @@ def hybrid_run(tmp_path_factory):
 @pytest.mark.long
 @pytest.mark.xdist_group("hybrid_posterior")
 def test_hybrid_posterior_recovers_the_hidden_curve(hybrid_run):
+    """The network's yaw acceleration (its torque over each draw's yaw inertia) against
+    the truth's part orthogonal to the gains: inside the 90 % band at most voltage pairs,
+    and the posterior mean follows its shape."""
+    from heli_uq.model.terms.rigid_body import yaw_inertia
+    from heli_uq.output.network import axis_inertia
+
     code, out, rec, model, values = hybrid_run
     assert code == 0
     idata = az.from_netcdf(out / "posterior.nc")
     torque = np.asarray(idata.posterior["nn_torque_yaw"])
-    torque = torque.reshape(-1, torque.shape[-1])
+    accel = torque.reshape(-1, torque.shape[-1]) / axis_inertia(idata, "yaw")[:, None]
     ut = np.asarray(idata.posterior["nn_point_yaw_u_theta"])
     up = np.asarray(idata.posterior["nn_point_yaw_u_psi"])
     pairs, counts = np.unique(rec.u, axis=0, return_counts=True)
     assert sorted(zip(ut, up)) == sorted(map(tuple, pairs))
-    # the truth's torque at the pairs, minus its weighted fit on (u_theta, u_psi): the part a
-    # network projected off the linear gains can hold (independent of the package's projection)
+    # the truth's acceleration at the pairs (at the reference pitch axis_inertia uses), minus
+    # its weighted fit on (u_theta, u_psi): the part a network projected off the linear gains
+    # can hold (independent of the package's projection)
     p = model.complete(values)
     term = model.effects[0]
     zero = jnp.zeros(2)
-    true = np.array([float(term(p, zero, zero, jnp.array([a, b]))[1]) for a, b in zip(ut, up)])
+    cd = idata.constant_data
+    theta_ref = float(np.median(np.asarray(cd["y_obs"])[np.asarray(cd["train_mask"], dtype=bool), 0]))
+    m22 = float(yaw_inertia(values, theta_ref))
+    true = np.array([float(term(p, zero, zero, jnp.array([a, b]))[1]) for a, b in zip(ut, up)]) / m22
     w = np.array([counts[np.flatnonzero((pairs == [a, b]).all(1))[0]] for a, b in zip(ut, up)], float)
     basis = np.column_stack([ut, up])
     beta = np.linalg.lstsq(basis * np.sqrt(w)[:, None], true * np.sqrt(w), rcond=None)[0]
     true_proj = true - basis @ beta
-    lo, hi = np.quantile(torque, [0.05, 0.95], axis=0)
+    lo, hi = np.quantile(accel, [0.05, 0.95], axis=0)
     inside = (lo <= true_proj) & (true_proj <= hi)
     assert inside.mean() >= COVERED_FRACTION, (lo, hi, true_proj)
-    assert np.corrcoef(torque.mean(0), true_proj)[0, 1] >= CURVE_CORRELATION
+    assert np.corrcoef(accel.mean(0), true_proj)[0, 1] >= CURVE_CORRELATION
 
 
 @pytest.mark.slow
@@ -88,6 +108,7 @@ def test_hybrid_run_reports_convergence_on_the_torque_and_the_weights(hybrid_run
     summary = json.loads((out / "summary.json").read_text())
     assert "rhat_max_network_torque" in summary and "rhat_max_network_weights" in summary
     assert summary["rhat_max"] >= summary["rhat_max_network_torque"]
+    assert summary["rhat_max_network_torque"] <= RHAT_TORQUE_LONG
     worst = summary.get("worst_rhat_variable") or ""
     assert not worst.startswith(("nn_W_", "nn_b_", "nn_w_"))
 

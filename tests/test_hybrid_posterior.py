@@ -207,28 +207,6 @@ def _fixed_mass_priors(model, values):
     return PriorSet.default(model).updated(model, {"m": Prior("fixed", values["m"])}, where="test")
 
 
-@pytest.mark.slow
-@pytest.mark.xdist_group("hybrid_posterior")  # one record and model: shared programs
-def test_last_layer_fixes_the_trained_hidden_layer_and_samples_the_output_weights():
-    """--nn-posterior last-layer: training from the base model's MAP lowers V, every hidden
-    weight and bias is fixed at its trained value, the output weights stay free."""
-    from heli_uq.output.last_layer import last_layer_setup
-
-    rec, _, values = _truth_record()
-    model = build_model([{"effect": "neural_torque", "axis": "yaw", "hidden": 2}])
-    priors = _fixed_mass_priors(model, values)
-    priors, guesses, info = last_layer_setup(rec, (0.0, SECONDS), None, model=model, priors=priors,
-                                             error="iid")  # fmt: skip
-    assert info["v_trained"] <= info["v_base"]
-    hidden = [n for n in model.names if n.startswith(("nn_W_", "nn_b_"))]
-    outputs = [n for n in model.names if n.startswith("nn_w_")]
-    assert hidden and outputs
-    for n in hidden:
-        assert not priors.params[n].free and priors.params[n].a == pytest.approx(guesses[0][n])
-    assert all(priors.params[n].free for n in outputs)
-    assert all(priors.params[n].free for n in ("J_s", "K_psi_psi"))
-
-
 #: Without the projection the yaw gain and the network's linear part must trade off at
 #: least this strongly (correlation over draws; Laplace at the last layer's MAP).
 TRADE_OFF_CORR = -0.5
@@ -245,6 +223,9 @@ def test_cli_hybrid_end_to_end_and_the_projection_removes_the_gain_network_trade
     """``heli-uq sample --model hybrid`` at a tiny size (last layer, Laplace, the default
     projection) and the same hybrid without the projection, through the library.
 
+    --nn-posterior last-layer: training from the base model's MAP lowers V, every hidden
+    weight and bias is fixed at its trained value, the output weights stay free.
+
     The CLI run exits 0 and stores the network torque on a named grid of exactly the
     record's voltage pairs, its convergence beside the weights', and the bands figure.
     Without the projection the yaw gain K_psi_psi and the network's part along u_psi are
@@ -256,6 +237,7 @@ def test_cli_hybrid_end_to_end_and_the_projection_removes_the_gain_network_trade
     the base model's MAP both ended at V = 3.1 rad^2 on this record and the Laplace
     covariance came out non-finite; started from the rig fit too, the base fit is good and
     the last-layer posterior finite."""
+    from heli_uq.output.last_layer import last_layer_setup
     from heli_uq.output.posterior_study import sample_posterior
 
     rec, _, values = _truth_record()
@@ -265,18 +247,28 @@ def test_cli_hybrid_end_to_end_and_the_projection_removes_the_gain_network_trade
                  "--fix", f"m={values['m']}", "--chains", "2", "--draws", "100", "--no-progress",
                  "--out", str(tmp_path / "u")])  # fmt: skip
     assert code == 0
+    # the library half, step by step: the last layer's setup, then its posterior
     hybrid = build_model([{"effect": "neural_torque", "axis": "yaw", "hidden": 2, "project": "none"}])
-    sample_posterior(rec, tmp_path / "none", model=hybrid, priors=_fixed_mass_priors(hybrid, values),
+    priors, guesses, info = last_layer_setup(rec, (0.0, SECONDS), None, model=hybrid, error="iid",
+                                             priors=_fixed_mass_priors(hybrid, values))  # fmt: skip
+    hidden = [n for n in hybrid.names if n.startswith(("nn_W_", "nn_b_"))]
+    outputs = [n for n in hybrid.names if n.startswith("nn_w_")]
+    assert hidden and outputs
+    for n in hidden:  # fixed at the trained values, the MAP's first start
+        assert not priors.params[n].free and priors.params[n].a == pytest.approx(guesses[0][n])
+    assert all(priors.params[n].free for n in (*outputs, "J_s", "K_psi_psi"))
+    sample_posterior(rec, tmp_path / "none", model=hybrid, priors=priors, guesses=guesses,
                      sampler="laplace", error="iid", chains=2, warmup=0, draws=100, progress=False,
-                     n_starts=1, network_posterior="last-layer")  # fmt: skip
+                     n_starts=1)  # fmt: skip
     trade = {}
     for project in ("none", "u"):
         summary = json.loads((tmp_path / project / "summary.json").read_text())
-        assert summary["last_layer"]["v_base"] < BASE_V_MAX
-        assert summary["last_layer"]["v_trained"] <= summary["last_layer"]["v_base"]
+        fit = info if project == "none" else summary["last_layer"]
+        assert fit["v_base"] < BASE_V_MAX and fit["v_trained"] <= fit["v_base"]
         assert {"rhat_max_network_torque", "rhat_max_network_weights"} <= set(summary)
         post = az.from_netcdf(tmp_path / project / "posterior.nc").posterior
-        assert "m" not in post  # fixed: not a sampled variable
+        assert "m" not in post and not any(n in post for n in hidden)  # fixed: not sampled
+        assert all(n in post for n in outputs)
         assert np.all(np.isfinite(post["K_psi_psi"].values)) and float(post["K_psi_psi"].std()) > 0
         assert post["nn_torque_yaw"].dims == ("chain", "draw", "nn_point_yaw")
         stored = set(zip(post["nn_point_yaw_u_theta"].values, post["nn_point_yaw_u_psi"].values))

@@ -119,12 +119,16 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
     fit = least_squares_fit(problem)
     sim = jax.jit(lambda z, x0: problem.solve(coords.to_physical(z), x0, problem.n_train).ys)
     fixed = {k: p.a for k, p in problem.priors.params.items() if not p.free}
-    base = {**problem.model.start_values(), **fixed}
-    alternative = {**_alternative_values(problem), **fixed}
+    # each guess is moved along the common scale to meet a fixed inertia-scaled value
+    on_scale = problem.model.on_the_scale_of
+    start = problem.model.start_values()
+    base = on_scale(start, fixed)
+    alternative = on_scale(_alternative_values(problem), fixed)
     linear = [p.name for p in problem.model.parameters() if p.interval[0] < 0]  # may be <= 0
     out = []
     t0 = time.perf_counter()
-    warm = [{**base, **{k: float(v) for k, v in g.items() if k in base}, **fixed} for g in guesses][:n]
+    warm = [on_scale({**start, **{k: float(v) for k, v in g.items() if k in start}}, fixed)
+            for g in guesses][:n]  # fmt: skip
     starts = warm + start_parameters(coords.free, base, n, seed, alternative=alternative,
                                      linear=linear)[: max(n - len(warm), 0)]  # fmt: skip
     screened = grid_start(problem, starts[0], log=log)

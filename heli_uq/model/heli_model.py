@@ -134,6 +134,34 @@ class HeliModel(eqx.Module):
         """Parameters flagged ``scales_with_inertia``: they span the common-scale direction."""
         return tuple(par.name for par in self.parameters() if par.scales_with_inertia)
 
+    def on_the_scale_of(self, values: Mapping, fixed: Mapping) -> dict:
+        """``values`` moved along the common-scale direction to meet ``fixed``, then ``fixed``.
+
+        Multiplying every inertia-scaled parameter (:attr:`scale_names`) by one factor
+        leaves the angles unchanged, so a guess whose scale differs from a fixed scaled
+        parameter (a start at Table 1 with ``m`` fixed at a fit's value) is moved by the
+        factor ``fixed[n] / values[n]`` (the geometric mean over the fixed scaled
+        parameters, where both are positive) before the fixed values are written in.  A
+        fixed value written into an unscaled guess would change the dynamics instead (the
+        gravity torque ``m g r_c`` against Table 1's gains turns the pitch over).
+
+        Parameters
+        ----------
+        values, fixed : mapping of str to float
+            Physical values [SI]; ``fixed`` wins where both name a parameter.
+
+        Returns
+        -------
+        dict
+            ``{name: value}`` with the names of ``values`` and ``fixed``.
+        """
+        scaled = set(self.scale_names)
+        logs = [math.log(float(fixed[n]) / float(values[n])) for n in fixed
+                if n in scaled and n in values and float(values[n]) > 0 and float(fixed[n]) > 0]  # fmt: skip
+        c = math.exp(sum(logs) / len(logs)) if logs else 1.0
+        moved = {n: (float(v) * c if n in scaled else v) for n, v in values.items()}
+        return {**moved, **fixed}
+
     # ------------------------------------------------------------- dynamics
     def prepare(self, p):
         """Parameter-only work, once per solve: ``(mechanics coefficients, p)``, with ``p``

@@ -69,7 +69,7 @@ def test_hybrid_posterior_recovers_the_hidden_curve(hybrid_run):
     the truth's part orthogonal to the gains: inside the 90 % band at most voltage pairs,
     and the posterior mean follows its shape."""
     from heli_uq.model.terms.rigid_body import yaw_inertia
-    from heli_uq.output.network import axis_inertia
+    from heli_uq.output.network import axis_inertia, reference_pitch
 
     code, out, rec, model, values = hybrid_run
     assert code == 0
@@ -86,9 +86,7 @@ def test_hybrid_posterior_recovers_the_hidden_curve(hybrid_run):
     p = model.complete(values)
     term = model.effects[0]
     zero = jnp.zeros(2)
-    cd = idata.constant_data
-    theta_ref = float(np.median(np.asarray(cd["y_obs"])[np.asarray(cd["train_mask"], dtype=bool), 0]))
-    m22 = float(yaw_inertia(values, theta_ref))
+    m22 = float(yaw_inertia(values, reference_pitch(idata)))
     true = np.array([float(term(p, zero, zero, jnp.array([a, b]))[1]) for a, b in zip(ut, up)]) / m22
     w = np.array([counts[np.flatnonzero((pairs == [a, b]).all(1))[0]] for a, b in zip(ut, up)], float)
     basis = np.column_stack([ut, up])

@@ -38,7 +38,7 @@ from heli_uq.model.terms.rigid_body import MECHANICS_PARAMETERS, pitch_inertia, 
 from heli_uq.probability.priors import fixed_values
 
 __all__ = ["network_points", "network_torques", "network_terms", "is_network_weight",
-           "gain_trade_off", "network_pairs", "band_widths", "axis_inertia", "MAX_POINTS",
+           "gain_trade_off", "network_pairs", "band_widths", "axis_inertia", "reference_pitch", "MAX_POINTS",
            "WEIGHT_PREFIXES", "UNSEEN"]  # fmt: skip
 
 #: Most grid points per network.
@@ -180,6 +180,12 @@ def _draws_of(post, fixed: dict, n: int):
     return flat
 
 
+def reference_pitch(idata) -> float:
+    """The training window's median measured pitch [rad]: where ``M22`` is taken."""
+    cd = idata.constant_data
+    return float(np.median(np.asarray(cd["y_obs"])[np.asarray(cd["train_mask"], dtype=bool), 0]))
+
+
 def axis_inertia(idata, axis: str) -> np.ndarray:
     """The inertia of ``axis`` per posterior draw, shape (S,) [kg m^2]: ``M11``, or ``M22``
     at the training window's median pitch.
@@ -192,9 +198,7 @@ def axis_inertia(idata, axis: str) -> np.ndarray:
     fixed = fixed_values(json.loads(post.attrs.get("priors", "{}")))
     flat = _draws_of(post, fixed, post.sizes["chain"] * post.sizes["draw"])
     body = {par.name: flat(par.name) for par in MECHANICS_PARAMETERS if par.name in post or par.name in fixed}
-    cd = idata.constant_data
-    theta_ref = float(np.median(np.asarray(cd["y_obs"])[np.asarray(cd["train_mask"], dtype=bool), 0]))
-    return np.asarray(pitch_inertia(body) if axis == "pitch" else yaw_inertia(body, theta_ref))
+    return np.asarray(pitch_inertia(body) if axis == "pitch" else yaw_inertia(body, reference_pitch(idata)))
 
 
 def band_widths(idata, axis: str = "yaw", level: float = 0.9) -> dict:

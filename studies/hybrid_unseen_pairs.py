@@ -17,6 +17,12 @@ fixes the trained hidden layer), FNN(u) on yaw:
   projection), so it is what the projected network can hold;
 * yaw RMSE and 90 % coverage on the test window, R-hat and the wall time.
 
+``--posteriors gp`` runs the Gaussian-process torque of the voltages instead of a network
+(:mod:`heli_uq.model.terms.gp_torque`, every inertia free: its values at the test
+window's new pairs are the GP's conditional, sampled with the rest), and ``none`` the
+model without any added torque; for these only the test-window numbers, R-hat and health
+are reported.
+
 One JSON line per posterior goes to ``--out`` (default
 ``studies/results/hybrid_unseen_pairs.jsonl``); the network torque figures to
 ``figures/hybrid_unseen_<posterior>.png``.  Usage::
@@ -68,7 +74,8 @@ def main(argv=None):
     ap.add_argument("--seconds", type=float, default=40.0)
     ap.add_argument("--seed", type=int, default=5)
     ap.add_argument("--hidden", type=int, default=4)
-    ap.add_argument("--posteriors", nargs="+", default=["full", "last-layer"], choices=["full", "last-layer"])
+    ap.add_argument("--posteriors", nargs="+", default=["full", "last-layer"],
+                    choices=["full", "last-layer", "gp", "none"])
     add_run_arguments(ap, "hybrid_unseen_pairs", chains=2, warmup=250, draws=250)
     args = ap.parse_args(argv)
 
@@ -98,6 +105,25 @@ def main(argv=None):
         t0 = time.perf_counter()
         print(f"{posterior}: NUTS {args.chains} x ({args.warmup} + {args.draws})", flush=True)
         run_dir = pathlib.Path(args.runs) / posterior
+        if posterior in ("gp", "none"):
+            other = build_model([{"effect": "gp_torque", "axis": "yaw"}] if posterior == "gp" else [])
+            _, summary = sample_posterior(record, run_dir, model=other, train=train, test=test, error="iid",
+                                          chains=args.chains, warmup=args.warmup, draws=args.draws,
+                                          progress=False)  # fmt: skip
+            te = summary["windows"]["test"]
+            line = {"posterior": posterior, "seconds_record": args.seconds, "train": list(train),
+                    "test": list(test), "k_q": K_Q, "test_rmse_psi": te["rmse"]["psi"],
+                    "test_coverage90_psi": te["coverage90"]["psi"],
+                    "train_rmse_psi": summary["windows"]["train"]["rmse"]["psi"],
+                    "gp_tau_yaw": summary["parameters"].get("gp_tau_yaw"),
+                    "rhat_max": summary.get("rhat_max"),
+                    "worst_rhat_variable": summary.get("worst_rhat_variable"),
+                    "tree_depth_saturation": summary.get("tree_depth_saturation"),
+                    "health": summary["health"]["flags"], "seconds": time.perf_counter() - t0}  # fmt: skip
+            line["provenance"] = provenance(__file__, argv, line["seconds"])
+            append_jsonl(args.out, line)
+            print(json.dumps({k: v for k, v in line.items() if k != "provenance"}), flush=True)
+            continue
         idata, summary = sample_posterior(record, run_dir, model=model, train=train, priors=priors,
                                           test=test, error="iid", network_posterior=posterior,
                                           chains=args.chains, warmup=args.warmup, draws=args.draws,

@@ -36,6 +36,9 @@ def _effects_help() -> str:
     lines.append("  neural_torque      hybrid model: a tanh network torque of the voltages (weights "
                  "nn_W_*, nn_b_*, nn_w_* [N m]); options inputs (u | u,x,v) and hidden in a "
                  "model file")
+    lines.append("  gp_torque          model discrepancy: a Gaussian-process torque of the voltages "
+                 "(gp_tau [N m], gp_z_J at each voltage pair of the span); options length_scale "
+                 "[V] and project in a model file")
     return "\n".join(lines)
 
 

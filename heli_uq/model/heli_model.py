@@ -171,11 +171,13 @@ class HeliModel(eqx.Module):
             extra.update(term.derived(p))
         return self.mechanics.prepare(p), ({**p, **extra} if extra else p)
 
-    def adapted(self, u, y, dt) -> HeliModel:
+    def adapted(self, u, y, dt, span_u=None) -> HeliModel:
         """This model with every term set up for a training window (``u`` (N, 2) [V],
-        ``y`` (N, 2) [rad], ``dt`` [s]; e.g. a neural term's input scaling)."""
-        return HeliModel(self.mechanics, tuple(t.adapt_to(u, y, dt) for t in self.inputs),
-                         tuple(t.adapt_to(u, y, dt) for t in self.torques))
+        ``y`` (N, 2) [rad], ``dt`` [s]; e.g. a neural term's input scaling) and the
+        voltages ``span_u`` (M, 2) [V] of the whole span it will simulate (training and
+        test window; default ``u``)."""
+        return HeliModel(self.mechanics, tuple(t.adapt_to(u, y, dt, span_u) for t in self.inputs),
+                         tuple(t.adapt_to(u, y, dt, span_u) for t in self.torques))
 
     def start_grid(self, u) -> dict:
         """Every term's :meth:`~heli_uq.model.terms.base.AbstractTerm.start_grid` for

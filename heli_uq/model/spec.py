@@ -91,7 +91,7 @@ def build_model(effects=(), *, mechanics: str = "closed_form", linear_torque: bo
 
 #: Options of a stored term that were derived from its record (a network's input scaling and
 #: projection); a rebuilt model adapts to its record again.
-_RECORD_OPTIONS = ("center", "scale", "projection", "reference")
+_RECORD_OPTIONS = ("center", "scale", "projection", "reference", "whiten")
 
 
 def with_effects(model: HeliModel, keep=lambda effect: True, add=(), *, where: str = "model") -> HeliModel:

@@ -79,6 +79,15 @@ class PriorSet:
     def names(self) -> tuple[str, ...]:
         return tuple(self.params) + X0_NAMES + _NOISE_NAMES
 
+    def completed(self, model: HeliModel) -> PriorSet:
+        """These priors with the declared default of every parameter of ``model`` they lack,
+        in the model's order: the parameters a term creates when it adapts to a record (a
+        GP torque's value at each voltage pair, :meth:`HeliModel.adapted`)."""
+        if set(self.params) == set(model.names):
+            return self
+        params = {p.name: self.params.get(p.name, p.prior) for p in model.parameters()}
+        return PriorSet(params, self.x0, self.noise)
+
     def x0_prior(self, name: str, y0) -> Prior:
         """The prior of an initial-state entry; ``y0`` = first measured angles (2,) [rad]."""
         prior = self.x0[name]

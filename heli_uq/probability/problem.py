@@ -125,9 +125,6 @@ def make_problem(record: Experiment, train=None, test=None, *, model: HeliModel 
     t0 = float(record.t[0])
     a, b = train if train is not None else (t0, t0 + record.duration)
     tr = record.window(a, b)
-    model = model.adapted(tr.u, tr.y, record.dt)  # e.g. a neural term's input scaling
-    coords = Coordinates(model, priors.params, strategy, yaw_theta_ref=float(np.median(tr.y[:, 0])),
-                         u_ref=tuple(float(m) for m in np.mean(tr.u, axis=0)))  # fmt: skip
     if test is None:
         span, test_idx = tr, None
     else:
@@ -140,6 +137,11 @@ def make_problem(record: Experiment, train=None, test=None, *, model: HeliModel 
         span = record.window(a, float(te.t[-1]) + 0.5 * record.dt)
         start = int(round((te.t[0] - span.t[0]) / record.dt))
         test_idx = (start, start + te.n)
+    # e.g. a neural term's input scaling, a GP term's voltage pairs (of the whole span)
+    model = model.adapted(tr.u, tr.y, record.dt, span_u=span.u)
+    priors = priors.completed(model)
+    coords = Coordinates(model, priors.params, strategy, yaw_theta_ref=float(np.median(tr.y[:, 0])),
+                         u_ref=tuple(float(m) for m in np.mean(tr.u, axis=0)))  # fmt: skip
     if substeps is None:
         substeps = default_substeps(model, model.start_values(), record.dt, thetas=tr.y[:, 0])
     return Problem(model=model, u=np.asarray(span.u), y=np.asarray(span.y), t=np.asarray(span.t),

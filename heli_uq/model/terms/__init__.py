@@ -13,6 +13,7 @@ from heli_uq.model.terms.base import AbstractTorque as AbstractTorque
 from heli_uq.model.terms.coulomb_friction import CoulombFriction as CoulombFriction
 from heli_uq.model.terms.deadband import DeadBand as DeadBand
 from heli_uq.model.terms.feature_torque import FeatureTorque as FeatureTorque
+from heli_uq.model.terms.gp_torque import GPTorque as GPTorque
 from heli_uq.model.terms.linear_torque import LinearTorque as LinearTorque
 from heli_uq.model.terms.neural_torque import NeuralTorque as NeuralTorque
 from heli_uq.model.terms.quadratic_drag import QuadraticDrag as QuadraticDrag
@@ -27,14 +28,16 @@ from heli_uq.model.terms.torsional_spring import TorsionalSpring as TorsionalSpr
 EFFECTS = {cls.kind: cls for cls in (DeadBand, CoulombFriction, QuadraticDrag, TorsionalSpring,
                                      QuadraticThrust, TorqueOffset)}  # fmt: skip
 #: Every term a model file or ``--effects`` may name: the vocabulary plus the neural torque
-#: of the hybrid model and the feature torque of an equation recovered from it (not named
-#: physical effects, so not discovery candidates).
-TERMS = {**EFFECTS, NeuralTorque.kind: NeuralTorque, FeatureTorque.kind: FeatureTorque}
+#: of the hybrid model, the feature torque of an equation recovered from it and the
+#: Gaussian-process torque of the voltages (model discrepancy; not named physical effects,
+#: so not discovery candidates).
+TERMS = {**EFFECTS, NeuralTorque.kind: NeuralTorque, FeatureTorque.kind: FeatureTorque,
+         GPTorque.kind: GPTorque}
 
 __all__ = [
     "AbstractEffect", "AbstractInputMap", "AbstractTerm", "AbstractTorque", "AbstractMechanics",
     "ClosedFormMechanics", "LagrangianMechanics", "LinearTorque", "CoulombFriction", "DeadBand",
     "QuadraticDrag", "QuadraticThrust", "TorqueOffset", "TorsionalSpring", "NeuralTorque",
-    "FeatureTorque",
+    "FeatureTorque", "GPTorque",
     "EFFECTS", "TERMS",
 ]  # fmt: skip

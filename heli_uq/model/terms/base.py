@@ -71,9 +71,10 @@ class AbstractTerm(eqx.Module):
         of this term (none by default)."""
         return {}
 
-    def adapt_to(self, u, y, dt) -> AbstractTerm:
+    def adapt_to(self, u, y, dt, span_u=None) -> AbstractTerm:
         """This term set up for a training window (``u`` (N, 2) [V], ``y`` (N, 2) [rad],
-        ``dt`` [s]); most terms need nothing from the record and return themselves."""
+        ``dt`` [s]) and the voltages ``span_u`` (M, 2) [V] of the whole simulated span
+        (default ``u``); most terms need nothing from the record and return themselves."""
         return self
 
     def start_grid(self, u) -> dict:

@@ -170,7 +170,7 @@ class NeuralTorque(AbstractEffect, AbstractTorque):
         return tuple(pars)
 
     # ------------------------------------------------------------ the record
-    def adapt_to(self, u, y, dt) -> NeuralTorque:
+    def adapt_to(self, u, y, dt, span_u=None) -> NeuralTorque:
         """This term with the input scaling and reference pairs of a training window.
 
         ``u`` (N, 2) [V] and ``y`` (N, 2) [rad] are the window's voltages and angles, ``dt``

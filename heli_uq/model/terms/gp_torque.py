@@ -1,0 +1,217 @@
+"""``gp_torque``: a Gaussian-process torque of the voltages on one axis (model discrepancy).
+
+The torque the model misses at each voltage pair is given a Gaussian-process prior over
+the voltages (Kennedy & O'Hagan 2001, model discrepancy as a function of the inputs):
+
+    f(u) ~ GP(0, tau^2 k(u, u')),   k(u, u') = exp(-|u - u'|^2 / (2 l^2))      [N m]
+    T(u) = f(u) - (beta_0 + beta_1 u_theta + beta_2 u_psi)
+
+with ``u = (u_theta, u_psi)`` [V] after any dead band, amplitude ``tau`` [N m] (sampled,
+a torque-type parameter) and length scale ``l`` [V] (:data:`LENGTH_SCALE`, an option of the
+term: the voltage distance over which the missing torque stays alike).
+
+**Where the GP lives.**  The voltages of a staircase record take a few dozen distinct
+pairs.  The term holds ``f`` at the distinct pairs of the *whole simulated span*
+(training window and test window: the inputs are known, only the angles are held out),
+non-centred: ``f(P) = tau L z`` with ``L L^T = k(P, P) + JITTER I`` and ``z_j ~ N(0, 1)``
+(parameters ``gp_z_<j>_<axis>``).  Between the pairs ``f`` is the kernel interpolant
+``f(u) = k(u, P) L^{-T} z tau``, which equals ``f(P)`` at the pairs.  A pair the
+training window never holds keeps its own ``z_j``, which the likelihood does not see:
+its posterior is the GP's conditional given the pairs that were fitted, so the predictive
+of a test window at new voltages carries the spread a torque error of size ``tau`` there
+would cause, instead of the narrow band of a model that assumes its gains hold at voltages
+it has not seen.  (A record predicted at pairs that are not reference pairs gets the
+interpolant only, the conditional mean: fit with a test window to get its spread.)
+
+**Keeping the GP from absorbing the physics.**  As for
+:class:`~heli_uq.model.terms.neural_torque.NeuralTorque`, ``beta`` is the least-squares
+fit of ``f`` at the *training* pairs (weights: samples held) on ``{u_theta, u_psi}``
+(``project="u"``) or ``{1, u_theta, u_psi}`` (``project="1,u"``, with a
+``torque_offset`` on the axis), subtracted everywhere: the gains own the linear part.
+
+Parameters are named ``gp_tau_<axis>`` and ``gp_z_<j>_<axis>``.  The reference pairs,
+the factor ``L^{-T}``, and the projection are set from the record
+(:meth:`GPTorque.adapt_to`) and stored in the model's description.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from heli_uq.errors import ParameterError
+from heli_uq.model.parameter import Parameter
+from heli_uq.model.prior import Prior
+from heli_uq.model.terms.base import AbstractEffect, AbstractTorque, on_axis
+
+__all__ = ["GPTorque", "LENGTH_SCALE", "TAU_PRIOR_SD", "MAX_PAIRS", "JITTER"]
+
+#: Default length scale [V] of the squared-exponential kernel over the voltages.
+LENGTH_SCALE = 0.1
+#: Prior sd [N m] of the half-normal prior on the amplitude ``tau``.
+TAU_PRIOR_SD = 0.01
+#: Start value [N m] of ``tau`` (at ``z = 0`` the torque is zero whatever ``tau`` is).
+TAU_START = 0.002
+#: Largest number of reference pairs (the most-held pairs of the span are kept).
+MAX_PAIRS = 80
+#: Nugget added to the kernel matrix's diagonal (relative to tau^2) before its Cholesky factor.
+JITTER = 1e-6
+#: The spans projected out (module docstring).
+PROJECTIONS = ("u", "1,u", "none")
+
+
+def _tuple(value):
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return tuple(_tuple(v) for v in value)
+    return float(value)
+
+
+def kernel(a, b, length_scale: float):
+    """Squared-exponential correlation ``exp(-|a - b|^2 / (2 l^2))`` of voltage pairs
+    ``a`` (n, 2) and ``b`` (k, 2) [V]; shape (n, k).  Works on numpy and jax arrays."""
+    xp = jnp if isinstance(a, jnp.ndarray) or isinstance(b, jnp.ndarray) else np
+    d2 = ((a[:, None, :] - b[None, :, :]) ** 2).sum(axis=-1)
+    return xp.exp(-0.5 * d2 / length_scale**2)
+
+
+def _reference_pairs(u_train, u_span, max_pairs: int) -> np.ndarray:
+    """The distinct voltage pairs (J, 2) [V]: the training window's first, then the span's
+    others (each group sorted; at most ``max_pairs``, the most-held kept).  With the
+    training pairs first, the Cholesky factor is block lower-triangular: the fitted values
+    depend on the training pairs' ``z`` only, and a new pair's ``z`` is left to its prior,
+    so its posterior is exactly the GP's conditional given the fitted values."""
+    train, train_counts = np.unique(u_train, axis=0, return_counts=True)
+    span, span_counts = np.unique(u_span, axis=0, return_counts=True)
+    seen = {tuple(p) for p in train}
+    new = np.array([tuple(p) not in seen for p in span])
+    pairs = np.concatenate([train, span[new]])
+    counts = np.concatenate([train_counts, span_counts[new]])
+    if len(pairs) > max_pairs:
+        pairs = pairs[np.sort(np.argsort(-counts, kind="stable")[:max_pairs])]
+    return pairs
+
+
+class GPTorque(AbstractEffect, AbstractTorque):
+    """Gaussian-process torque ``T(u)`` on ``axis`` (module docstring).
+
+    Parameters
+    ----------
+    axis : {"pitch", "yaw"}
+    length_scale : float
+        Kernel length scale [V], > 0.
+    project : {"u", "1,u", "none"}
+    reference : tuple of tuple of float
+        Reference voltage pairs (J, 2) [V]; empty until :meth:`adapt_to`.
+    whiten : tuple of tuple of float
+        ``L^{-T}`` (J, J), with ``L`` the Cholesky factor of the reference pairs' kernel matrix.
+    projection : tuple of tuple of float
+        (3, J) rows: ``beta = projection @ f(P)`` (zero columns at pairs outside the
+        training window); empty for ``project="none"``.
+    """
+
+    kind: ClassVar[str] = "gp_torque"
+    input_only: ClassVar[bool] = True
+    axis: str = eqx.field(static=True, default="yaw")
+    length_scale: float = eqx.field(static=True, default=LENGTH_SCALE)
+    project: str = eqx.field(static=True, default="u")
+    reference: tuple = eqx.field(static=True, default=(), converter=_tuple)
+    whiten: tuple = eqx.field(static=True, default=(), converter=_tuple)
+    projection: tuple = eqx.field(static=True, default=(), converter=_tuple)
+
+    def __check_init__(self):
+        if isinstance(self.length_scale, bool) or not self.length_scale > 0:
+            raise ParameterError(f"gp_torque: length_scale must be > 0 V, found {self.length_scale!r}")
+        if self.project not in PROJECTIONS:
+            raise ParameterError(f"gp_torque: project must be one of {', '.join(PROJECTIONS)}, "
+                                 f"found {self.project!r}")  # fmt: skip
+        if self.reference and len(self.whiten) != len(self.reference):
+            raise ParameterError(f"gp_torque: whiten needs {len(self.reference)} rows (one per "
+                                 f"reference pair), found {len(self.whiten)}")  # fmt: skip
+
+    @property
+    def n_pairs(self) -> int:
+        return len(self.reference)
+
+    def _declare(self):
+        pars = [Parameter("gp_tau", "N m", 0.0, Prior("halfnormal", TAU_PRIOR_SD), "nonnegative", True,
+                          None, "GP torque amplitude", TAU_START)]  # fmt: skip
+        pars += [Parameter(f"gp_z_{j}", "1", 0.0, Prior("normal", 0.0, 1.0), "real", False, None,
+                           f"GP torque, whitened value at reference pair {j}", 0.0)
+                 for j in range(self.n_pairs)]  # fmt: skip
+        return tuple(pars)
+
+    # ------------------------------------------------------------ the record
+    def adapt_to(self, u, y, dt, span_u=None) -> GPTorque:
+        """This term with the reference pairs of the span ``span_u`` (M, 2) [V] (default
+        the training window's ``u`` (N, 2)) and the projection over the training window's
+        pairs.  A term that already has them is returned unchanged."""
+        if self.reference:
+            return self
+        u = np.asarray(u, dtype=float)
+        span = u if span_u is None else np.asarray(span_u, dtype=float)
+        pairs = _reference_pairs(u, span, MAX_PAIRS)
+        gram = kernel(pairs, pairs, self.length_scale) + JITTER * np.eye(len(pairs))
+        whiten = np.linalg.inv(np.linalg.cholesky(gram)).T
+        if self.project == "none":
+            return GPTorque(self.axis, self.length_scale, self.project, pairs, whiten)
+        train_pairs, counts = np.unique(u, axis=0, return_counts=True)
+        weights = np.zeros(len(pairs))
+        index = {tuple(p): j for j, p in enumerate(pairs)}
+        for p, c in zip(train_pairs, counts):
+            if tuple(p) in index:
+                weights[index[tuple(p)]] = c
+        intercept = np.ones(len(pairs)) * (self.project == "1,u")
+        basis = np.column_stack([intercept, pairs])
+        root_w = np.sqrt(weights / weights.sum())
+        projection = np.linalg.pinv(root_w[:, None] * basis, rcond=1e-10) * root_w[None, :]
+        return GPTorque(self.axis, self.length_scale, self.project, pairs, whiten, projection)
+
+    # ---------------------------------------------------------------- physics
+    def _alpha(self, p):
+        """Kernel weights ``tau L^{-T} z`` (J,) [N m]."""
+        z = jnp.stack([p[self.name(f"gp_z_{j}")] for j in range(self.n_pairs)])
+        return p[self.name("gp_tau")] * (jnp.asarray(self.whiten) @ z)
+
+    def values_at(self, p, u):
+        """``f(u)`` [N m] before the projection, at voltage pairs ``u`` (k, 2) [V]."""
+        if not self.reference:
+            return jnp.zeros(jnp.shape(u)[0])
+        return kernel(jnp.asarray(u), jnp.asarray(self.reference), self.length_scale) @ self._alpha(p)
+
+    def derived(self, p) -> dict:
+        """Once per solve: the kernel weights and the projection coefficients ``beta``."""
+        if not self.reference:
+            return {}
+        alpha = self._alpha(p)
+        out = {self.name("gp_alpha"): alpha}
+        if self.projection:
+            f_ref = jnp.asarray(kernel(np.asarray(self.reference), np.asarray(self.reference),
+                                       self.length_scale)) @ alpha  # fmt: skip
+            out[self.name("gp_beta")] = jnp.asarray(self.projection) @ f_ref
+        return out
+
+    def torque(self, p, u):
+        """``T(u)`` [N m] at one voltage pair ``u`` (2,)."""
+        if not self.reference:
+            return 0.0
+        derived = p if self.name("gp_alpha") in p else {**p, **self.derived(p)}
+        alpha = derived[self.name("gp_alpha")]
+        ref = jnp.asarray(self.reference)
+        k = jnp.exp(-0.5 * ((ref[:, 0] - u[0]) ** 2 + (ref[:, 1] - u[1]) ** 2) / self.length_scale**2)
+        out = k @ alpha
+        if self.projection:
+            beta = derived[self.name("gp_beta")]
+            out = out - (beta[0] + beta[1] * u[0] + beta[2] * u[1])
+        return out
+
+    def __call__(self, p, x, v, u):
+        return on_axis(self.axis, self.torque(p, u))
+
+    def describe(self) -> dict:
+        return {"effect": self.kind, "axis": self.axis, "length_scale": self.length_scale,
+                "project": self.project, "reference": [list(r) for r in self.reference],
+                "whiten": [list(r) for r in self.whiten],
+                "projection": [list(r) for r in self.projection]}  # fmt: skip

@@ -1,0 +1,197 @@
+"""The Gaussian-process torque (model discrepancy over the voltages): its values at the
+voltage pairs against the kernel written out in numpy, its prior covariance, the projection
+that leaves the linear gains to the mechanics, its gradient against finite differences,
+the pairs of a test window it holds, and its description round trip."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from heli_uq.errors import ParameterError
+from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model, model_from_description
+from heli_uq.model.terms.gp_torque import JITTER
+from heli_uq.probability import make_problem
+from heli_uq.simulation import simulate, synthetic_experiment
+
+#: Agreement with the numpy form (float64 round-off of a 30 x 30 triangular solve).
+EXACT = 1e-10
+#: Relative agreement of the autodiff gradient with central differences.
+FD_RTOL = 1e-6
+#: The angles may change by at most this much [rad] under the common scale.
+SCALE_INVARIANCE_RAD = 1e-9
+LENGTH = 0.15  # kernel length scale of these tests [V]
+#: A test-window pair's value may move the training window's angles by at most this [rad]:
+#: between the pairs the interpolant carries the nugget (``JITTER``), ~1e-6 rad here.
+NUGGET_LEAK_RAD = 1e-5
+
+
+def _record(seconds=60.0, seed=3):
+    return synthetic_experiment(RIG_FIT, RIG_FIT_X0, duration=seconds, inputs="rig_steps", seed=seed,
+                                noise_std=(0.003, 0.008))  # fmt: skip
+
+
+def _numpy_kernel(a, b):
+    """``exp(-|a - b|^2 / (2 l^2))``, written out pair by pair (independent form)."""
+    out = np.empty((len(a), len(b)))
+    for i, x in enumerate(a):
+        for j, y in enumerate(b):
+            out[i, j] = np.exp(-((x[0] - y[0]) ** 2 + (x[1] - y[1]) ** 2) / (2 * LENGTH**2))
+    return out
+
+
+def _problem(project="1,u", train=(0.0, 45.0), test=(45.0, 60.0)):
+    rec = _record()
+    item = {"effect": "gp_torque", "axis": "yaw", "length_scale": LENGTH, "project": project}
+    model = build_model(["yaw:torque_offset", item] if project == "1,u" else [item])
+    return rec, make_problem(rec, train, test, model=model, error="iid")
+
+
+def _values(model, seed=0, tau=0.01):
+    rng = np.random.default_rng(seed)
+    z = {n: rng.normal() for n in model.names if n.startswith("gp_z_")}
+    return model.complete({**RIG_FIT, **z, "gp_tau_yaw": tau})
+
+
+@pytest.fixture(scope="module", params=["1,u", "none"])
+def problem(request):
+    return _problem(request.param)
+
+
+def test_the_span_pairs_are_the_reference_and_get_standard_normal_priors(problem):
+    rec, pr = problem
+    term = pr.model.effects[-1]
+    span_pairs = np.unique(pr.u, axis=0)
+    train_pairs = np.unique(pr.u[: pr.n_train], axis=0)
+    reference = np.asarray(term.reference)
+    # the training window's pairs first, then the test window's new ones: every span pair once
+    np.testing.assert_array_equal(reference[: len(train_pairs)], train_pairs)
+    np.testing.assert_array_equal(np.unique(reference, axis=0), span_pairs)
+    assert len(reference) == len(span_pairs)
+    assert len(span_pairs) > len(train_pairs), "the test window must hold pairs the training window does not"
+    names = [f"gp_z_{j}_yaw" for j in range(len(span_pairs))]
+    assert [n for n in pr.model.names if n.startswith("gp_z_")] == names
+    assert all(pr.priors.params[n].describe() == "normal(0, 1)" for n in names)
+    assert "gp_tau_yaw" in pr.model.scale_names
+
+
+def test_a_new_pairs_value_leaves_the_training_window_unchanged(problem):
+    # block lower-triangular factor: the z of a pair only the test window holds moves the
+    # torque there and nowhere in the training window, so its posterior is its prior given
+    # the fitted pairs (the GP's conditional)
+    _, pr = problem
+    term = pr.model.effects[-1]
+    n_seen = len(np.unique(pr.u[: pr.n_train], axis=0))
+    p = _values(pr.model, seed=4)
+    moved = {**p, f"gp_z_{term.n_pairs - 1}_yaw": p[f"gp_z_{term.n_pairs - 1}_yaw"] + 3.0}
+    a = simulate(p, RIG_FIT_X0, pr.u, pr.dt, model=pr.model)
+    b = simulate(moved, RIG_FIT_X0, pr.u, pr.dt, model=pr.model)
+    assert term.n_pairs > n_seen
+    assert float(jnp.max(jnp.abs(a[: pr.n_train, :2] - b[: pr.n_train, :2]))) < NUGGET_LEAK_RAD
+    assert float(jnp.max(jnp.abs(a[pr.n_train:, 1] - b[pr.n_train:, 1]))) > 1e-3
+
+
+def test_values_at_the_pairs_follow_the_kernel(problem):
+    _, pr = problem
+    term = pr.model.effects[-1]
+    pairs = np.asarray(term.reference)
+    p = _values(pr.model)
+    z = np.array([p[f"gp_z_{j}_yaw"] for j in range(len(pairs))])
+    gram = _numpy_kernel(pairs, pairs)
+    lower = np.linalg.cholesky(gram + JITTER * np.eye(len(pairs)))
+    prepared = pr.model.prepare(p)[1]
+    f = np.asarray(term.values_at(prepared, jnp.asarray(pairs)))
+    # f(P) = tau L z (up to the nugget's tau * JITTER * alpha)
+    np.testing.assert_allclose(f, 0.01 * lower @ z, atol=1e-5 * 0.01 * np.abs(z).max())
+    # the prior covariance of f(P): the Jacobian d f / d z is tau L, so J J^T = tau^2 (K + nugget)
+    jac = jax.jacfwd(lambda zz: term.values_at(
+        term_params(pr.model, p, zz), jnp.asarray(pairs)))(jnp.asarray(z))  # fmt: skip
+    prior_cov = 0.01**2 * (gram + JITTER * np.eye(len(pairs)))
+    np.testing.assert_allclose(np.asarray(jac) @ np.asarray(jac).T, prior_cov, atol=1e-4 * 1e-5)
+
+
+def term_params(model, p, z):
+    q = dict(p)
+    for j, v in enumerate(z):
+        q[f"gp_z_{j}_yaw"] = v
+    return model.prepare(q)[1]
+
+
+def test_the_torque_is_orthogonal_to_the_gains_over_the_training_pairs(problem):
+    rec, pr = problem
+    term = pr.model.effects[-1]
+    p = pr.model.prepare(_values(pr.model, seed=1))[1]
+    pairs, counts = np.unique(pr.u[: pr.n_train], axis=0, return_counts=True)
+    got = np.array([float(term.torque(p, jnp.asarray(q))) for q in pairs])
+    raw = np.asarray(term.values_at(p, jnp.asarray(pairs)))
+    if term.project == "none":
+        np.testing.assert_allclose(got, raw, atol=EXACT)
+        return
+    basis = np.column_stack([np.ones(len(pairs)), pairs])
+    np.testing.assert_allclose(basis.T @ (counts * got), 0.0, atol=EXACT * counts.sum())
+    # and only a linear function was taken off: the residual of raw - got on the basis is 0
+    coef = np.linalg.lstsq(basis, raw - got, rcond=None)[0]
+    np.testing.assert_allclose(basis @ coef, raw - got, atol=EXACT)
+
+
+def test_gradient_matches_finite_differences(problem):
+    _, pr = problem
+    term = pr.model.effects[-1]
+    p = _values(pr.model, seed=2)
+    u = jnp.asarray(np.unique(pr.u, axis=0)[-1] + 0.013)  # between the pairs
+    names = ["gp_tau_yaw", "gp_z_0_yaw", f"gp_z_{term.n_pairs - 1}_yaw"]
+
+    def torque(values):
+        q = {**p, **dict(zip(names, values))}
+        return term.torque(pr.model.prepare(q)[1], u)
+
+    x = jnp.asarray([p[n] for n in names])
+    grad = np.asarray(jax.grad(torque)(x))
+    h = 1e-6
+    fd = np.array([(torque(x.at[i].add(h)) - torque(x.at[i].add(-h))) / (2 * h) for i in range(len(x))])
+    np.testing.assert_allclose(grad, fd, rtol=FD_RTOL, atol=1e-12)
+    assert np.all(np.abs(grad) > 0)
+
+
+def test_common_scale_leaves_the_angles_unchanged(problem):
+    _, pr = problem
+    p = _values(pr.model, seed=3)
+    base = simulate(p, RIG_FIT_X0, pr.u, pr.dt, model=pr.model)
+    scaled = {k: v * 1.7 if k in pr.model.scale_names else v for k, v in p.items()}
+    moved = simulate(scaled, RIG_FIT_X0, pr.u, pr.dt, model=pr.model)
+    assert float(jnp.max(jnp.abs(moved[:, :2] - base[:, :2]))) < SCALE_INVARIANCE_RAD
+    assert float(jnp.max(jnp.abs(base[:, 1] - simulate(RIG_FIT, RIG_FIT_X0, pr.u, pr.dt)[:, 1]))) > 1e-3
+
+
+def test_description_round_trip_keeps_the_pairs(problem):
+    rec, pr = problem
+    again = model_from_description(pr.model.describe())
+    assert again == pr.model
+    assert again.adapted(rec.u[:100], rec.y[:100], rec.dt) == pr.model
+
+
+def test_bad_options_are_refused():
+    for item, needle in (({"effect": "gp_torque", "axis": "yaw", "length_scale": 0.0}, "length_scale"),
+                         ({"effect": "gp_torque", "axis": "yaw", "project": "x"}, "project"),
+                         ({"effect": "gp_torque", "axis": "yaw", "width": 1}, "width")):  # fmt: skip
+        with pytest.raises(ParameterError, match=needle):
+            build_model([item])
+
+
+
+def test_a_users_priors_from_the_unadapted_model_are_kept_and_completed():
+    # the CLI builds priors before the record is read; the values at the voltage pairs that
+    # the term creates when it adapts get their declared prior, the user's choices stay
+    from heli_uq.model.prior import Prior
+    from heli_uq.probability import PriorSet
+
+    rec = _record()
+    model = build_model([{"effect": "gp_torque", "axis": "yaw", "length_scale": LENGTH}])
+    priors = PriorSet.default(model).updated(model, {"gp_tau_yaw": Prior("halfnormal", 0.003),
+                                                     "m": Prior("fixed", RIG_FIT["m"])})  # fmt: skip
+    pr = make_problem(rec, (0.0, 45.0), (45.0, 60.0), model=model, priors=priors, error="iid")
+    assert pr.priors.params["gp_tau_yaw"].describe() == Prior("halfnormal", 0.003).describe()
+    assert not pr.priors.params["m"].free
+    z_names = [n for n in pr.model.names if n.startswith("gp_z_")]
+    assert len(z_names) == pr.model.effects[-1].n_pairs > 0
+    assert list(pr.priors.params) == list(pr.model.names)

@@ -282,10 +282,8 @@ def identifiability_report(record: Experiment, out_dir, *, model: HeliModel | No
     log = progress_log(log, __name__)
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    model = HeliModel() if model is None else model
-    priors = PriorSet.default(model) if priors is None else priors
-    model = model.adapted(record.u, record.y, record.dt)  # e.g. a GP torque's voltage pairs
-    priors = priors.completed(model)
+    model = (HeliModel() if model is None else model).adapted(record.u, record.y, record.dt)  # GP pairs
+    priors = PriorSet.default(model) if priors is None else priors.completed(model)
     base = {**model.start_values(), **(base or {})}
     if free is None:
         free = [n for n in model.names if priors.params[n].free]

@@ -47,7 +47,7 @@ from heli_uq.model.parameter import Parameter
 from heli_uq.model.prior import Prior
 from heli_uq.model.terms.base import AbstractEffect, AbstractTorque, on_axis
 
-__all__ = ["GPTorque", "LENGTH_SCALE", "TAU_PRIOR_SD", "MAX_PAIRS", "JITTER"]
+__all__ = ["GPTorque", "kernel", "LENGTH_SCALE", "TAU_PRIOR_SD", "MAX_PAIRS", "JITTER"]
 
 #: Default length scale [V] of the squared-exponential kernel over the voltages.
 LENGTH_SCALE = 0.1

@@ -23,12 +23,13 @@ import abc
 import dataclasses
 
 import equinox as eqx
+import numpy as np
 
 from heli_uq.errors import ParameterError
 from heli_uq.model.parameter import AXES, Parameter
 
 __all__ = ["AbstractTerm", "AbstractTorque", "AbstractInputMap", "AbstractEffect", "on_axis",
-           "axis_index"]  # fmt: skip
+           "axis_index", "float_tuple", "gain_projection"]  # fmt: skip
 
 
 def axis_index(axis: str) -> int:
@@ -36,6 +37,24 @@ def axis_index(axis: str) -> int:
     if axis not in AXES:
         raise ParameterError(f"axis must be one of {', '.join(AXES)}, found {axis!r}")
     return AXES.index(axis)
+
+
+def float_tuple(value):
+    """Nested tuples of floats (hashable static fields; JSON lists read back)."""
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return tuple(float_tuple(v) for v in value)
+    return float(value)
+
+
+def gain_projection(pairs, weights, intercept: bool) -> np.ndarray:
+    """Rows ``P`` (3, k) with ``beta = P @ f`` the weighted least-squares fit of values ``f``
+    (k,) at voltage pairs ``pairs`` (k, 2) [V] on ``(1,) u_theta, u_psi`` (weights: samples
+    held at each pair; ``beta_0 = 0`` without ``intercept``).  Subtracting that fit makes a
+    data-driven torque orthogonal to what the linear gains (and an offset) own."""
+    pairs, weights = np.asarray(pairs, dtype=float), np.asarray(weights, dtype=float)
+    basis = np.column_stack([np.ones(len(pairs)) * intercept, pairs])
+    root_w = np.sqrt(weights / weights.sum())
+    return np.linalg.pinv(root_w[:, None] * basis, rcond=1e-10) * root_w[None, :]
 
 
 def on_axis(axis: str, torque):

@@ -45,7 +45,7 @@ import numpy as np
 from heli_uq.errors import ParameterError
 from heli_uq.model.parameter import Parameter
 from heli_uq.model.prior import Prior
-from heli_uq.model.terms.base import AbstractEffect, AbstractTorque, on_axis
+from heli_uq.model.terms.base import AbstractEffect, AbstractTorque, float_tuple, gain_projection, on_axis
 
 __all__ = ["GPTorque", "kernel", "LENGTH_SCALE", "TAU_PRIOR_SD", "MAX_PAIRS", "JITTER"]
 
@@ -61,12 +61,6 @@ MAX_PAIRS = 80
 JITTER = 1e-6
 #: The spans projected out (module docstring).
 PROJECTIONS = ("u", "1,u", "none")
-
-
-def _tuple(value):
-    if isinstance(value, (list, tuple, np.ndarray)):
-        return tuple(_tuple(v) for v in value)
-    return float(value)
 
 
 def kernel(a, b, length_scale: float):
@@ -117,9 +111,9 @@ class GPTorque(AbstractEffect, AbstractTorque):
     axis: str = eqx.field(static=True, default="yaw")
     length_scale: float = eqx.field(static=True, default=LENGTH_SCALE)
     project: str = eqx.field(static=True, default="u")
-    reference: tuple = eqx.field(static=True, default=(), converter=_tuple)
-    whiten: tuple = eqx.field(static=True, default=(), converter=_tuple)
-    projection: tuple = eqx.field(static=True, default=(), converter=_tuple)
+    reference: tuple = eqx.field(static=True, default=(), converter=float_tuple)
+    whiten: tuple = eqx.field(static=True, default=(), converter=float_tuple)
+    projection: tuple = eqx.field(static=True, default=(), converter=float_tuple)
 
     def __check_init__(self):
         if isinstance(self.length_scale, bool) or not self.length_scale > 0:
@@ -163,10 +157,7 @@ class GPTorque(AbstractEffect, AbstractTorque):
         for p, c in zip(train_pairs, counts):
             if tuple(p) in index:
                 weights[index[tuple(p)]] = c
-        intercept = np.ones(len(pairs)) * (self.project == "1,u")
-        basis = np.column_stack([intercept, pairs])
-        root_w = np.sqrt(weights / weights.sum())
-        projection = np.linalg.pinv(root_w[:, None] * basis, rcond=1e-10) * root_w[None, :]
+        projection = gain_projection(pairs, weights, self.project == "1,u")
         return GPTorque(self.axis, self.length_scale, self.project, pairs, whiten, projection)
 
     # ---------------------------------------------------------------- physics
@@ -199,9 +190,8 @@ class GPTorque(AbstractEffect, AbstractTorque):
             return 0.0
         derived = p if self.name("gp_alpha") in p else {**p, **self.derived(p)}
         alpha = derived[self.name("gp_alpha")]
-        ref = jnp.asarray(self.reference)
-        k = jnp.exp(-0.5 * ((ref[:, 0] - u[0]) ** 2 + (ref[:, 1] - u[1]) ** 2) / self.length_scale**2)
-        out = k @ alpha
+        pair = jnp.stack([u[0], u[1]])[None, :]
+        out = kernel(pair, jnp.asarray(self.reference), self.length_scale)[0] @ alpha
         if self.projection:
             beta = derived[self.name("gp_beta")]
             out = out - (beta[0] + beta[1] * u[0] + beta[2] * u[1])

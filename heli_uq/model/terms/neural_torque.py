@@ -48,7 +48,7 @@ import numpy as np
 from heli_uq.errors import ParameterError
 from heli_uq.model.parameter import Parameter
 from heli_uq.model.prior import Prior
-from heli_uq.model.terms.base import AbstractEffect, AbstractTorque, on_axis
+from heli_uq.model.terms.base import AbstractEffect, AbstractTorque, float_tuple, gain_projection, on_axis
 
 __all__ = ["NeuralTorque", "NN_INPUTS", "WEIGHT_PRIOR_SD", "OUTPUT_PRIOR_SD", "DEFAULT_HIDDEN"]
 
@@ -66,13 +66,6 @@ OUTPUT_PRIOR_SD = 0.05
 START_OUTPUT = 0.005
 #: Largest number of reference voltage pairs of the orthogonal projection.
 MAX_REFERENCE_PAIRS = 200
-
-
-def _tuple(value):
-    """Nested tuples of floats (hashable, JSON lists read back)."""
-    if isinstance(value, (list, tuple, np.ndarray)):
-        return tuple(_tuple(v) for v in value)
-    return float(value)
 
 
 def _start_weights(hidden: int, n_in: int) -> np.ndarray:
@@ -118,10 +111,10 @@ class NeuralTorque(AbstractEffect, AbstractTorque):
     inputs: str = eqx.field(static=True, default="u")
     hidden: int = eqx.field(static=True, default=DEFAULT_HIDDEN)
     project: str = eqx.field(static=True, default="u")
-    center: tuple = eqx.field(static=True, default=(), converter=_tuple)
-    scale: tuple = eqx.field(static=True, default=(), converter=_tuple)
-    projection: tuple = eqx.field(static=True, default=(), converter=_tuple)
-    reference: tuple = eqx.field(static=True, default=(), converter=_tuple)
+    center: tuple = eqx.field(static=True, default=(), converter=float_tuple)
+    scale: tuple = eqx.field(static=True, default=(), converter=float_tuple)
+    projection: tuple = eqx.field(static=True, default=(), converter=float_tuple)
+    reference: tuple = eqx.field(static=True, default=(), converter=float_tuple)
 
     def __check_init__(self):
         if self.inputs not in NN_INPUTS:
@@ -193,10 +186,7 @@ class NeuralTorque(AbstractEffect, AbstractTorque):
         if len(pairs) > MAX_REFERENCE_PAIRS:  # keep the most-held pairs
             keep = np.argsort(-counts)[:MAX_REFERENCE_PAIRS]
             pairs, counts = pairs[keep], counts[keep]
-        intercept = np.ones(len(pairs)) * (self.project == "1,u")
-        basis = np.column_stack([intercept, pairs])
-        root_w = np.sqrt(counts / counts.sum())
-        projection = np.linalg.pinv(root_w[:, None] * basis, rcond=1e-10) * root_w[None, :]
+        projection = gain_projection(pairs, counts, self.project == "1,u")
         return NeuralTorque(self.axis, self.inputs, self.hidden, self.project, center, scale,
                             projection, pairs)  # fmt: skip
 

@@ -12,9 +12,11 @@ drawn from the case's seed (``g`` and the pitch statics kept, :func:`jittered_ba
 records held out from the package come from another fit of the rig, and discovery must
 not depend on starting at the truth.  With ``--hidden-omega-s W`` a hidden Coulomb
 friction is smoothed over ``W`` rad/s instead of the fitted term's width (another
-simulator's friction law).  Then ``heli_uq.discovery.discover`` runs on it
-(``--budget``, train 0-91 s / test 91-131 s).  A case of two effects joined by ``+``
-(``yaw:torque_offset+pitch:deadband``) hides both and runs with ``max_effects=2``.
+simulator's friction law); with ``--hold MIN:MAX`` the staircase's levels are held
+``MIN``-``MAX`` s instead of 3-14 s (another staircase: more and shorter input segments).
+Then ``heli_uq.discovery.discover`` runs on it (``--budget``, train 0-91 s / test
+91-131 s).  A case of two effects joined by ``+`` (``yaw:torque_offset+pitch:deadband``)
+hides both and runs with ``max_effects=2``.
 
 Writes one JSON line per case to ``--out`` (default
 ``studies/results/discovery_confusion.jsonl``): the truth, what was named, whether each
@@ -46,7 +48,7 @@ from heli_uq.data import load_data  # noqa: E402
 from heli_uq.discovery import discover  # noqa: E402
 from heli_uq.model import AXES, EFFECTS, RIG_FIT, RIG_FIT_X0, build_model  # noqa: E402
 from heli_uq.simulation import reference_solve, synthetic_experiment  # noqa: E402
-from heli_uq.simulation.synthetic import ENCODER_QUANTUM  # noqa: E402
+from heli_uq.simulation.synthetic import ENCODER_QUANTUM, RIG_RANGES, step_inputs  # noqa: E402
 
 #: Hidden value of each effect's parameters (bare names, SI), by axis.
 HIDDEN = {
@@ -90,13 +92,15 @@ def jittered_base(seed: int, jitter: float) -> dict[str, float]:
 
 
 def make_record(case: str, inputs: str, seed: int, seconds: float, hidden=HIDDEN, base_jitter=0.0,
-                omega_s=None):  # fmt: skip
+                omega_s=None, hold=None):  # fmt: skip
     """The synthetic record of ``case`` (``"none"`` or ``"axis:effect"``) and its truth.
 
     ``hidden`` gives the hidden values (default :data:`HIDDEN`, same layout);
     ``base_jitter`` the log-normal spread of the base parameters (:func:`jittered_base`);
     ``omega_s`` [rad/s] the smoothing width of a hidden ``coulomb_friction`` (default the
-    term's, which the candidates fit): another friction law than the fitted one.
+    term's, which the candidates fit): another friction law than the fitted one;
+    ``hold`` = ``(min, max)`` [s] the hold time of a ``rig_steps`` level (default the
+    package's 3-14 s): another staircase than the package's own.
     """
     effects = [] if case == "none" else case.split("+")
     if omega_s is not None:
@@ -110,7 +114,13 @@ def make_record(case: str, inputs: str, seed: int, seconds: float, hidden=HIDDEN
     def reference(p, x0, u, dt):
         return reference_solve(p, x0, u, dt, model=model)
 
-    u = inputs if inputs == "rig_steps" else load_data("experimental").window(0, seconds).u
+    if inputs == "published":
+        u = load_data("experimental").window(0, seconds).u
+    elif hold is not None:  # own generator stream: the noise stream of `seed` is unchanged
+        u = step_inputs(round(seconds / 0.01), 0.01, np.random.default_rng([seed, 104729]),
+                        RIG_RANGES, hold)  # fmt: skip
+    else:
+        u = inputs
     rec = synthetic_experiment(truth, RIG_FIT_X0, duration=seconds, inputs=u, noise_std=NOISE,
                                seed=seed, simulator=reference, quantum=ENCODER_QUANTUM)  # fmt: skip
     lo, hi = rec.y[:, 0].min(), rec.y[:, 0].max()
@@ -123,7 +133,7 @@ def make_record(case: str, inputs: str, seed: int, seconds: float, hidden=HIDDEN
 
 def run_case(case: str, inputs: str, seed: int, args) -> dict:
     rec, truth, model = make_record(case, inputs, seed, args.seconds, args.hidden, args.base_jitter,
-                                    args.hidden_omega_s)  # fmt: skip
+                                    args.hidden_omega_s, args.hold)  # fmt: skip
     split = 0.7 * args.seconds
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -150,7 +160,8 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
             **({"base_jitter": args.base_jitter,
                 "base": {k: truth[k] for k in RIG_FIT}} if args.base_jitter else {}),
             **({"hidden_omega_s": args.hidden_omega_s}
-               if args.hidden_omega_s is not None else {})}  # fmt: skip
+               if args.hidden_omega_s is not None else {}),
+            **({"hold": list(args.hold)} if args.hold is not None else {})}  # fmt: skip
 
 
 def confusion(path) -> str:
@@ -187,6 +198,17 @@ def hidden_value(text: str):
                                          f"HIDDEN ({err})") from None
 
 
+def _hold(text: str) -> tuple[float, float]:
+    """``"MIN:MAX"`` [s] -> ``(min, max)``, 0 < min <= max."""
+    try:
+        lo, hi = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected MIN:MAX in seconds") from None
+    if not 0 < lo <= hi:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected 0 < MIN <= MAX")
+    return lo, hi
+
+
 def main(argv=None) -> int:
     all_cases = ["none"] + [f"{a}:{k}" for a in AXES for k in EFFECTS]
 
@@ -215,6 +237,8 @@ def main(argv=None) -> int:
     ap.add_argument("--hidden-omega-s", type=float, default=None, metavar="W",
                     help="smoothing width [rad/s] of a hidden coulomb_friction (default: the "
                          "fitted term's), e.g. 0.0002 for nearly exact stick-slip")
+    ap.add_argument("--hold", type=_hold, default=None, metavar="MIN:MAX",
+                    help="hold time [s] of a rig_steps level (default: the package's 3-14 s)")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     ap.add_argument("--out", default=str(RESULTS / "discovery_confusion.jsonl"))
     args = ap.parse_args(argv)

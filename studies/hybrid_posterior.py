@@ -148,7 +148,8 @@ def main(argv=None):
             pairs, weights = network_pairs(fnn_u, "yaw")
             points = {"u_theta": pairs[:, 0], "u_psi": pairs[:, 1]}
             recovered = recover_equation(torque, points, weights, project="u")
-            label = "+ recovered equation"
+            source = "every weight" if args.nn_posterior == "full" else "last layer"
+            label = f"+ recovered equation (from FNN(u){sized}, {source})"
             model = equation_model(models["u"][1], "yaw", recovered["selected"])
         elif models.get(row) is None:
             print(f"{row}: no discovered effect (run the discover_rig study or pass --effect); skipped")
@@ -161,7 +162,8 @@ def main(argv=None):
         print(f"{label}: {args.sampler} ({args.chains} x ({args.warmup} + {args.draws}))", flush=True)
         projected = "" if row != "u" or args.project == "u" else f"_{args.project}"
         size = f"_h{args.hidden}" if other_size and row in ("u", "u,x,v") else ""
-        run_dir = runs / (row.replace(",", "") + projected + size + every)
+        source_run = f"_h{args.hidden}_{args.nn_posterior}" if row == "equation" else ""
+        run_dir = runs / (row.replace(",", "") + projected + size + every + source_run)
         idata, summary = sample_posterior(record, run_dir, model=model, train=train,
                                           test=test, error="iid", sampler=args.sampler,
                                           network_posterior=args.nn_posterior, **accept,

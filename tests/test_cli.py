@@ -430,7 +430,7 @@ def test_simulate_with_effects_and_model_file(tmp_path, capsys, small_record):
 @pytest.mark.parametrize(
     ("argv", "needles"),
     [
-        (["--effects", "yaw:stiction"], ["--effects", "unknown effect 'stiction'", "coulomb_friction"]),
+        (["--effects", "yaw:backlash"], ["--effects", "unknown effect 'backlash'", "coulomb_friction"]),
         (["--effects", "roll:deadband"], ["--effects", "unknown axis 'roll'", "pitch, yaw"]),
         (["--effects", "deadband"], ["--effects", "AXIS:EFFECT"]),
         (["--model-file", "MODEL"], ["m.json", "unknown effect 'spring'"]),

@@ -86,8 +86,8 @@ def test_discover_says_none_without_a_hidden_effect_and_reuses_fits(tmp_path):
 
 def test_bad_input_is_refused_before_any_fit(tmp_path):
     rec = _record([], {}, seed=1)
-    with pytest.raises(ParameterError, match="unknown effect 'stiction'"):
-        discover(rec, tmp_path, base_effects=["yaw:stiction"])
+    with pytest.raises(ParameterError, match="unknown effect 'backlash'"):
+        discover(rec, tmp_path, base_effects=["yaw:backlash"])
     with pytest.raises(ParameterError, match="outside the record"):
         discover(rec, tmp_path, train=(0.0, 20.0), test=(20.0, 40.0))
     with pytest.raises(ParameterError, match="too short"):
@@ -108,8 +108,8 @@ def _csv(tmp_path):
 
 def test_cli_bad_input_is_one_line(tmp_path, capsys):
     csv = _csv(tmp_path)
-    for argv, needle in ((["--base-effects", "yaw:stiction"], "unknown effect 'stiction'"),
-                         (["--candidates", "yaw:torque_offset,yaw:stiction"], "unknown effect 'stiction'"),
+    for argv, needle in ((["--base-effects", "yaw:backlash"], "unknown effect 'backlash'"),
+                         (["--candidates", "yaw:torque_offset,yaw:backlash"], "unknown effect 'backlash'"),
                          (["--window", "0:10"], "too short"),
                          (["--train", "0:20"], "--train and --test go together"),
                          (["--max-effects", "0"], "--max-effects"),

@@ -295,7 +295,7 @@ def test_a_constant_torque_twice_on_one_axis_is_found_by_the_svd():
 
 def test_bad_effect_options_and_priors_are_clear_errors():
     with pytest.raises(ParameterError, match="expected one of deadband"):
-        parse_effects("yaw:stiction")
+        parse_effects("yaw:backlash")
     with pytest.raises(ParameterError, match="unknown axis 'roll'"):
         parse_effects("roll:deadband")
     with pytest.raises(ParameterError, match="AXIS:EFFECT"):

@@ -33,6 +33,8 @@ def _effects_help() -> str:
     for name, cls in EFFECTS.items():
         pars = ", ".join(f"{p.name} [{p.unit}]" for p in cls()._declare())
         lines.append(f"  {name:18s} {pars}")
+    lines.append("  stiction           breakaway friction above the sliding level: F_s [N m], fading "
+                 "over omega_b (option, 0.02 rad/s); with coulomb_friction the Stribeck law")
     lines.append("  neural_torque      hybrid model: a tanh network torque of the voltages (weights "
                  "nn_W_*, nn_b_*, nn_w_* [N m]); options inputs (u | u,x,v) and hidden in a "
                  "model file")

@@ -239,14 +239,21 @@ class HeliModel(eqx.Module):
         return jnp.concatenate([y[2:], a])
 
     def stiffness(self, p, thetas=None) -> float:
-        """Largest rate [1/s] any term adds near rest (0 for the linear model).
+        """Largest rate [1/s] the terms add near rest, on either axis (0 for the linear model).
 
+        The rates of the terms on one axis add (Coulomb friction and stiction on yaw both
+        steepen the yaw friction law at rest); the larger axis sum is returned.
         ``thetas``: the pitch angles [rad] the yaw inertia is taken over (default all).
         """
         p = {k: float(v) for k, v in p.items()}
         inertia = self.mechanics.inertia_bounds(p, thetas)
-        rates = [term.stiffness(p, inertia) for term in self.terms]
-        return max([0.0] + [r for r in rates if math.isfinite(r)])
+        per_axis: dict = {}
+        for term in self.terms:
+            rate = term.stiffness(p, inertia)
+            if math.isfinite(rate):
+                axis = getattr(term, "axis", None)
+                per_axis[axis] = per_axis.get(axis, 0.0) + rate
+        return max([0.0, *per_axis.values()])
 
     # ---------------------------------------------------------- description
     @property

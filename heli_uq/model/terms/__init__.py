@@ -21,23 +21,25 @@ from heli_uq.model.terms.quadratic_thrust import QuadraticThrust as QuadraticThr
 from heli_uq.model.terms.rigid_body import AbstractMechanics as AbstractMechanics
 from heli_uq.model.terms.rigid_body import ClosedFormMechanics as ClosedFormMechanics
 from heli_uq.model.terms.rigid_body import LagrangianMechanics as LagrangianMechanics
+from heli_uq.model.terms.stiction import Stiction as Stiction
 from heli_uq.model.terms.torque_offset import TorqueOffset as TorqueOffset
 from heli_uq.model.terms.torsional_spring import TorsionalSpring as TorsionalSpring
 
 #: The named effects, by their contract names.
 EFFECTS = {cls.kind: cls for cls in (DeadBand, CoulombFriction, QuadraticDrag, TorsionalSpring,
                                      QuadraticThrust, TorqueOffset)}  # fmt: skip
-#: Every term a model file or ``--effects`` may name: the vocabulary plus the neural torque
-#: of the hybrid model, the feature torque of an equation recovered from it and the
-#: Gaussian-process torque of the voltages (model discrepancy; not named physical effects,
-#: so not discovery candidates).
-TERMS = {**EFFECTS, NeuralTorque.kind: NeuralTorque, FeatureTorque.kind: FeatureTorque,
-         GPTorque.kind: GPTorque}
+#: Every term a model file or ``--effects`` may name: the vocabulary plus the stiction
+#: variant of friction (breakaway above the sliding level; outside the effects table), the
+#: neural torque of the hybrid model, the feature torque of an equation recovered from it
+#: and the Gaussian-process torque of the voltages (model discrepancy).  Only the
+#: vocabulary's effects are discovery candidates.
+TERMS = {**EFFECTS, Stiction.kind: Stiction, NeuralTorque.kind: NeuralTorque,
+         FeatureTorque.kind: FeatureTorque, GPTorque.kind: GPTorque}
 
 __all__ = [
     "AbstractEffect", "AbstractInputMap", "AbstractTerm", "AbstractTorque", "AbstractMechanics",
     "ClosedFormMechanics", "LagrangianMechanics", "LinearTorque", "CoulombFriction", "DeadBand",
     "QuadraticDrag", "QuadraticThrust", "TorqueOffset", "TorsionalSpring", "NeuralTorque",
-    "FeatureTorque", "GPTorque",
+    "FeatureTorque", "GPTorque", "Stiction",
     "EFFECTS", "TERMS",
 ]  # fmt: skip

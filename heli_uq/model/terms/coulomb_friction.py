@@ -31,10 +31,17 @@ from heli_uq.model.parameter import Parameter
 from heli_uq.model.prior import Prior
 from heli_uq.model.terms.base import AbstractEffect, AbstractTorque, axis_index, on_axis
 
-__all__ = ["CoulombFriction", "OMEGA_S"]
+__all__ = ["CoulombFriction", "OMEGA_S", "rate_at_rest"]
 
 #: Default smoothing width [rad/s] of the friction law (module docstring).
 OMEGA_S = 0.002
+
+
+def rate_at_rest(level: float, omega_s: float, inertia, axis: str) -> float:
+    """Rate [1/s] a friction law ``level tanh(omega / omega_s)`` [N m] adds at rest on
+    ``axis``: its slope ``level / omega_s`` over that axis' inertia (``inertia`` =
+    ``(M11, M22_min)`` [kg m^2])."""
+    return float(level) / (omega_s * float(inertia[axis_index(axis)]))
 
 
 class CoulombFriction(AbstractEffect, AbstractTorque):
@@ -58,8 +65,7 @@ class CoulombFriction(AbstractEffect, AbstractTorque):
         return on_axis(self.axis, -p[self.name("F_c")] * jnp.tanh(omega / self.omega_s))
 
     def stiffness(self, p, inertia):
-        m = inertia[axis_index(self.axis)]
-        return float(p[self.name("F_c")]) / (self.omega_s * float(m))
+        return rate_at_rest(p[self.name("F_c")], self.omega_s, inertia, self.axis)
 
     def describe(self):
         return {"effect": self.kind, "axis": self.axis, "omega_s": self.omega_s}

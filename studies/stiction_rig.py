@@ -19,6 +19,7 @@ Usage: ``python studies/stiction_rig.py`` (about 12 min on 2 cores).
 from __future__ import annotations
 
 import argparse
+import json
 import pathlib
 import sys
 import time
@@ -35,6 +36,10 @@ PAIR = ("yaw:coulomb_friction", "yaw:torque_offset")
 STRIBECK = ("yaw:coulomb_friction", "yaw:stiction", "yaw:torque_offset")
 
 
+def _label(effects) -> str:
+    return "+ stiction" if "yaw:stiction" in effects else "friction + offset"
+
+
 def _plot(record, fits, test, path) -> None:
     import matplotlib.pyplot as plt
 
@@ -48,8 +53,9 @@ def _plot(record, fits, test, path) -> None:
     ax.plot(t, np.degrees(record.y[:, 1]), "k", lw=0.8, label="measured")
     for (label, fit), color in zip(fits, ("tab:orange", "tab:green")):
         model = build_model(list(fit["effects"]))
-        p = fit["map"]
-        x0 = [p["theta0"], p["psi0"], p["omega_theta0"], p["omega_psi0"]]
+        states = ("theta0", "psi0", "omega_theta0", "omega_psi0")
+        p = {k: v for k, v in fit["map"].items() if k not in states}
+        x0 = [fit["map"][k] for k in states]
         ys = np.asarray(simulate(p, x0, record.u, record.dt, model=model, substeps=fit["substeps"]))
         ax.plot(t, np.degrees(ys[:, 1]), color=color, lw=1.2,
                 label=f"{label}: test yaw RMSE {fit['score']['rmse_psi']:.3f} rad")  # fmt: skip
@@ -66,6 +72,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(RESULTS / "stiction_rig.jsonl"))
     ap.add_argument("--figure", default=str(FIGURES / "stiction_rig.png"))
+    ap.add_argument("--replot", action="store_true",
+                    help="only draw the figure from the last two lines of --out (no fits)")
     args = ap.parse_args(argv)
 
     from heli_uq.data import load_data
@@ -73,6 +81,10 @@ def main(argv=None) -> int:
 
     record = load_data("experimental")
     train, test = (0.0, 91.0), (91.0, 131.0)
+    if args.replot:
+        lines = [json.loads(t) for t in pathlib.Path(args.out).read_text().splitlines()[-2:]]
+        _plot(record, [(_label(ln["effects"]), ln) for ln in lines], test, pathlib.Path(args.figure))
+        return 0
     fits = []
     for effects, guesses in ((PAIR, ()), (STRIBECK, None)):
         if guesses is None:  # nested: from the pair's MAP with a small breakaway excess
@@ -83,7 +95,7 @@ def main(argv=None) -> int:
         line = {"effects": list(effects), **fit, "seconds": time.perf_counter() - t0}
         line["provenance"] = provenance(__file__, argv, line["seconds"])
         append_jsonl(args.out, line)
-        fits.append(("+ stiction" if "yaw:stiction" in effects else "friction + offset", fit))
+        fits.append((_label(effects), fit))
         print(f"{', '.join(effects)}: -log p {fit['map_value']:.0f}, train yaw RMSE "
               f"{fit['fit']['rmse_psi']:.3f}, test yaw RMSE {fit['score']['rmse_psi']:.3f} rad, "
               f"coverage {fit['score']['coverage90_psi']:.0%} ({line['seconds']:.0f} s)",

@@ -40,7 +40,7 @@ def _label(effects) -> str:
     return "+ stiction" if "yaw:stiction" in effects else "friction + offset"
 
 
-def _plot(record, fits, test, path) -> None:
+def _plot(record, fits, train, test, path) -> None:
     import matplotlib.pyplot as plt
 
     from heli_uq.figure import save_figure
@@ -61,7 +61,7 @@ def _plot(record, fits, test, path) -> None:
                 label=f"{label}: test yaw RMSE {fit['score']['rmse_psi']:.3f} rad")  # fmt: skip
     ax.set_xlabel("time t [s]")
     ax.set_ylabel("yaw ψ [deg]")
-    ax.set_title("Rig record, MAP simulations fitted on 0–91 s: "
+    ax.set_title(f"Rig record, MAP simulations fitted on {train[0]:g}–{train[1]:g} s: "
                  "yaw friction + offset, with and without stiction")
     ax.legend(loc="upper left", fontsize=8)
     ax.grid(alpha=0.3)
@@ -72,18 +72,21 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(RESULTS / "stiction_rig.jsonl"))
     ap.add_argument("--figure", default=str(FIGURES / "stiction_rig.png"))
+    ap.add_argument("--train", default="0:91", metavar="A:B", help="fitting window [s] (default 0:91)")
+    ap.add_argument("--test", default="91:131", metavar="C:D", help="held-out window [s] (default 91:131)")
     ap.add_argument("--replot", action="store_true",
                     help="only draw the figure from the last two lines of --out (no fits)")
     args = ap.parse_args(argv)
 
-    from heli_uq.data import load_data
+    from heli_uq.data import load_data, parse_window
     from heli_uq.discovery.candidates import FitTask, fit_and_score
 
     record = load_data("experimental")
-    train, test = (0.0, 91.0), (91.0, 131.0)
+    train, test = parse_window(args.train), parse_window(args.test)
+    record = record.window(train[0], test[1])
     if args.replot:
         lines = [json.loads(t) for t in pathlib.Path(args.out).read_text().splitlines()[-2:]]
-        _plot(record, [(_label(ln["effects"]), ln) for ln in lines], test, pathlib.Path(args.figure))
+        _plot(record, [(_label(ln["effects"]), ln) for ln in lines], train, test, pathlib.Path(args.figure))
         return 0
     fits = []
     for effects, guesses in ((PAIR, ()), (STRIBECK, None)):
@@ -100,7 +103,7 @@ def main(argv=None) -> int:
               f"{fit['fit']['rmse_psi']:.3f}, test yaw RMSE {fit['score']['rmse_psi']:.3f} rad, "
               f"coverage {fit['score']['coverage90_psi']:.0%} ({line['seconds']:.0f} s)",
               flush=True)  # fmt: skip
-    _plot(record, fits, test, pathlib.Path(args.figure))
+    _plot(record, fits, train, test, pathlib.Path(args.figure))
     return 0
 
 

@@ -84,6 +84,10 @@ def test_nuts_and_emcee_agree(nuts_run, synthetic_problem, synthetic_start, tmp_
 LOGLIK_SUM_RTOL = 1e-10
 
 
+# arviz warns when some observation's Pareto k exceeds 0.6; on this short 2-chain run that
+# happened on a fresh machine (2026-11-27) and not before.  The assertion below (elpd > 0
+# at 3 mrad noise, about +4.5 nats per observation) does not rest on those few weights.
+@pytest.mark.filterwarnings("ignore:Estimated shape parameter of Pareto distribution")
 @pytest.mark.xdist_group("nuts_run")
 def test_inference_data_groups_and_dims(nuts_run, synthetic_problem):
     idata = to_inference_data(nuts_run, prior_draws=50, pp_draws=40)

@@ -44,7 +44,7 @@ def _plot(record, fits, train, test, path) -> None:
     import matplotlib.pyplot as plt
 
     from heli_uq.figure import save_figure
-    from heli_uq.model import build_model
+    from heli_uq.model import X0_NAMES, build_model
     from heli_uq.simulation import simulate
 
     t = np.asarray(record.t)
@@ -53,9 +53,8 @@ def _plot(record, fits, train, test, path) -> None:
     ax.plot(t, np.degrees(record.y[:, 1]), "k", lw=0.8, label="measured")
     for (label, fit), color in zip(fits, ("tab:orange", "tab:green")):
         model = build_model(list(fit["effects"]))
-        states = ("theta0", "psi0", "omega_theta0", "omega_psi0")
-        p = {k: v for k, v in fit["map"].items() if k not in states}
-        x0 = [fit["map"][k] for k in states]
+        p = {k: v for k, v in fit["map"].items() if k not in X0_NAMES}
+        x0 = [fit["map"][k] for k in X0_NAMES]
         ys = np.asarray(simulate(p, x0, record.u, record.dt, model=model, substeps=fit["substeps"]))
         ax.plot(t, np.degrees(ys[:, 1]), color=color, lw=1.2,
                 label=f"{label}: test yaw RMSE {fit['score']['rmse_psi']:.3f} rad")  # fmt: skip

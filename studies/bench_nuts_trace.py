@@ -43,6 +43,7 @@ def measure(way: str, seconds: float) -> dict:
     from numpyro.infer import NUTS
 
     from heli_uq.inference.density import log_density_setup
+    from heli_uq.inference.nuts import _chain_functions
     from heli_uq.probability import make_problem
     from heli_uq.simulation import synthetic_experiment
 
@@ -52,29 +53,23 @@ def measure(way: str, seconds: float) -> dict:
     density = log_density_setup(make_problem(record, error="iid"))
     potential = density.potential if way == "plain" else jax.jit(density.potential)
     kernel = NUTS(potential_fn=potential, dense_mass=True, max_tree_depth=6)
-
-    def init_one(key, x):
-        return kernel.init(key, 10, x, (), {})
-
-    def block_one(state, n):
-        return jax.lax.fori_loop(0, n, lambda i, s: kernel.sample(s, (), {}), state)
-
+    init, block = _chain_functions(kernel, 10, parallel=False)  # the sampler's own programs
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
     xs = jnp.stack([jnp.asarray(density.x_init)] * 2)
     out = {}
     t = time.perf_counter()
-    lowered = jax.jit(jax.vmap(init_one)).lower(keys, xs)
+    lowered = init.lower(keys, xs)
     out["init_trace_s"] = time.perf_counter() - t
     t = time.perf_counter()
     state = lowered.compile()(keys, xs)
     out["init_compile_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    lowered = jax.jit(jax.vmap(block_one, in_axes=(0, None))).lower(state, BLOCK)
+    lowered = block.lower(state, BLOCK)
     out["block_trace_s"] = time.perf_counter() - t
     t = time.perf_counter()
     compiled = lowered.compile()
     out["block_compile_s"] = time.perf_counter() - t
-    state = compiled(state, BLOCK)
+    state, _ = compiled(state, BLOCK)
     out["draws"] = np.asarray(state.z).tolist()
     out["dim"] = int(density.dim)
     return out

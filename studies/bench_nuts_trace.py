@@ -5,8 +5,9 @@ numpyro's NUTS calls the potential and its gradient at several sites of its tree
 building.  A plain Python potential is traced (and differentiated, and batched over the
 chains) at each of them; a jitted one is traced once per input shape and reused.
 :func:`heli_uq.inference.run_nuts` passes it jitted.  For each way this script builds the
-kernel's two programs as the sampler does (``init`` and a block of iterations, vmapped
-over the chains), times tracing (``lower``) and XLA compilation (``compile``) with the
+kernel's two programs with the sampler's own function (``init`` and a block of
+iterations, vmapped over the chains; on the plain potential, without the sampler's
+whitening map), times tracing (``lower``) and XLA compilation (``compile``) with the
 persistent compilation cache off, checks that both ways give the same draws, and appends
 one JSON line to ``results/bench_nuts_trace.jsonl`` with the times [s] and the plain/jit
 ratios.  Each way runs in a fresh process, the order alternating over ``--repeats``.
@@ -51,7 +52,7 @@ def measure(way: str, seconds: float) -> dict:
     jax.config.update("jax_compilation_cache_dir", None)
     record = synthetic_experiment(duration=seconds, seed=1, noise_std=(0.003, 0.003))
     density = log_density_setup(make_problem(record, error="iid"))
-    potential = density.potential if way == "plain" else jax.jit(density.potential)
+    potential = density.potential if way == "plain" else density.potential_jit
     kernel = NUTS(potential_fn=potential, dense_mass=True, max_tree_depth=6)
     init, block = _chain_functions(kernel, 10, parallel=False)  # the sampler's own programs
     keys = jax.random.split(jax.random.PRNGKey(0), 2)

@@ -6,10 +6,52 @@ import numpy as np
 import pytest
 
 from heli_uq.inference.density import LogDensity
-from heli_uq.inference.map import newton_polish
+from heli_uq.inference.map import laplace, newton_polish
 
 #: Distance to the known optimum after the polish, relative to the smallest posterior sd.
 OPTIMUM_TOL = 1e-6
+#: Curvatures [1/coordinate^2] of the Hessian at a 92 s synthetic record's MAP (yaw drag
+#: model): the prior-only inertia split and common scale at the weak end, the pitch
+#: gain-gravity balance at the stiff end.
+RECORD_CURVATURES = (0.43, 2.4, 9.7, 1.6e3, 6.8e10)
+#: Relative error allowed in a Laplace sd (the finite-difference Hessian of an exact
+#: quadratic is exact up to rounding).
+LAPLACE_SD_TOL = 1e-6
+
+
+def _quadratic(curvatures, seed=0):
+    """``-log p = 0.5 (x - m)^T A (x - m)`` with ``A``'s eigenvalues ``curvatures`` in a
+    random basis: ``(density, A, m)``."""
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.normal(size=(len(curvatures),) * 2))
+    a = (q * np.asarray(curvatures)) @ q.T
+    a = 0.5 * (a + a.T)
+    m = rng.normal(size=len(curvatures))
+
+    def potential(x):
+        d = x - m
+        return 0.5 * d @ jnp.asarray(a) @ d
+
+    return LogDensity(None, potential, None, np.zeros(len(curvatures))), a, m, q
+
+
+def test_laplace_keeps_the_weak_curvatures_of_a_long_record():
+    """The covariance is the inverse Hessian along every eigendirection, the weakest too:
+    a floor at 1e-10 of the largest curvature (until 2026-11-27) raised 0.43 and 2.4 to
+    6.8 and made the prior-dominated directions 4x too narrow."""
+    density, a, m, q = _quadratic(RECORD_CURVATURES)
+    _, cov = laplace(density, m)
+    sd = np.sqrt(np.einsum("ij,jk,ki->i", q.T, cov, q))  # sd along each eigendirection
+    np.testing.assert_allclose(sd, 1.0 / np.sqrt(RECORD_CURVATURES), rtol=LAPLACE_SD_TOL)
+
+
+def test_laplace_counts_a_negative_curvature_by_its_magnitude():
+    """At a saddle the covariance stays positive definite with the curvature's own scale
+    (not a floor that makes the direction 1e5 times wider or narrower)."""
+    density, a, m, q = _quadratic((-2.0, 1.0, 1e6))
+    _, cov = laplace(density, m)
+    sd = np.sqrt(np.einsum("ij,jk,ki->i", q.T, cov, q))
+    np.testing.assert_allclose(sd, 1.0 / np.sqrt([2.0, 1.0, 1e6]), rtol=LAPLACE_SD_TOL)
 
 
 def test_newton_polish_reaches_the_optimum_of_an_ill_conditioned_density():

@@ -19,7 +19,7 @@ from heli_uq.errors import ParameterError
 from heli_uq.inference.density import LogDensity
 
 __all__ = ["MapResult", "find_map", "newton_polish", "laplace", "leave_saddles", "HESSIAN_STEP",
-           "NEWTON_STEPS", "NEWTON_TOL", "NEWTON_EXTEND", "NEWTON_SCOUT_STEPS"]  # fmt: skip
+           "NEWTON_STEPS", "NEWTON_TOL", "NEWTON_EXTEND", "NEWTON_SCOUT_STEPS", "EIGEN_FLOOR"]  # fmt: skip
 
 #: Relative step of the finite-difference Hessian (of the analytic gradient).
 HESSIAN_STEP = 1e-5
@@ -38,6 +38,15 @@ NEWTON_STEPS = 200
 #: With several starts, each gets this many Newton steps; only the best continues.
 NEWTON_SCOUT_STEPS = 20
 NEWTON_TOL = 1e-15
+#: Eigenvalues of a Hessian below this fraction of its largest magnitude are raised to it
+#: (:func:`_positive_curvature`): ``eigh`` in float64 resolves an eigenvalue only to about
+#: ``1e-16 ||H||``, so smaller ones are rounding.  It was 1e-10 until 2026-11-27, and on
+#: long records that floor cut real curvature: on a 92 s record the Hessian's eigenvalues
+#: span 0.43 to 6.8e10 (the pitch gain-gravity balance against the prior-only inertia
+#: split), the two smallest were raised to 6.84, and the Laplace sd of the prior-dominated
+#: coordinates came out 0.38 where the exact Hessian and the NUTS posterior give 0.66 and
+#: 1.5 (``scale_noise``, ``logit_body_fraction``).
+EIGEN_FLOOR = 1e-13
 #: At most this many doublings of an accepted full Newton step (:func:`_extend`).
 NEWTON_EXTEND = 6
 
@@ -158,6 +167,16 @@ def _fd_hessian(grad, x: np.ndarray) -> np.ndarray:
     return 0.5 * (h + h.T)
 
 
+def _positive_curvature(h: np.ndarray):
+    """Eigen-decomposition ``(w, v)`` of the symmetric ``h`` with each eigenvalue replaced by
+    its magnitude, floored at :data:`EIGEN_FLOOR` times the largest (and at least that
+    fraction of 1): ``(v / w) @ v.T`` is then a positive-definite inverse that keeps every
+    resolved curvature, and a Newton step with it descends."""
+    w, v = np.linalg.eigh(h)
+    w = np.abs(w)
+    return np.maximum(w, max(w.max(), 1.0) * EIGEN_FLOOR), v
+
+
 def newton_polish(density: LogDensity, x: np.ndarray, steps: int = NEWTON_STEPS):
     """Damped Newton iterations on ``density.potential`` from ``x``.
 
@@ -178,8 +197,7 @@ def newton_polish(density: LogDensity, x: np.ndarray, steps: int = NEWTON_STEPS)
         h = _fd_hessian(grad, x)
         if not (np.all(np.isfinite(g)) and np.all(np.isfinite(h))):
             break
-        w, v = np.linalg.eigh(h)
-        w = np.maximum(np.abs(w), max(np.abs(w).max(), 1.0) * 1e-10)
+        w, v = _positive_curvature(h)
         step = -(v / w) @ (v.T @ g)
         decrement = float(-g @ step)
         if decrement < NEWTON_TOL or taken == steps:
@@ -264,7 +282,8 @@ def leave_saddles(density: LogDensity, x: np.ndarray, rounds: int = SADDLE_ROUND
 
 def laplace(density: LogDensity, x: np.ndarray):
     """Hessian of ``-log p`` at ``x`` (central differences of the exact gradient) and the
-    covariance ``H^-1`` with eigenvalues floored so it is positive definite.
+    covariance ``H^-1``, positive definite (:func:`_positive_curvature`: a negative
+    eigenvalue counts by its magnitude, none below :data:`EIGEN_FLOOR` of the largest).
 
     Returns
     -------
@@ -276,7 +295,5 @@ def laplace(density: LogDensity, x: np.ndarray):
             "the Hessian of the log density at the MAP is not finite: the model diverges "
             "next to the optimum (try a shorter window or tighter priors)"
         )
-    w, v = np.linalg.eigh(h)
-    floor = max(w.max(), 1.0) * 1e-10
-    w = np.maximum(w, floor)
+    w, v = _positive_curvature(h)
     return h, (v / w) @ v.T

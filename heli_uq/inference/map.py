@@ -39,14 +39,17 @@ NEWTON_STEPS = 200
 NEWTON_SCOUT_STEPS = 20
 NEWTON_TOL = 1e-15
 #: Eigenvalues of a Hessian below this fraction of its largest magnitude are raised to it
-#: (:func:`_positive_curvature`): ``eigh`` in float64 resolves an eigenvalue only to about
-#: ``1e-16 ||H||``, so smaller ones are rounding.  It was 1e-10 until 2026-11-27, and on
-#: long records that floor cut real curvature: on a 92 s record the Hessian's eigenvalues
-#: span 0.43 to 6.8e10 (the pitch gain-gravity balance against the prior-only inertia
-#: split), the two smallest were raised to 6.84, and the Laplace sd of the prior-dominated
-#: coordinates came out 0.38 where the exact Hessian and the NUTS posterior give 0.66 and
-#: 1.5 (``scale_noise``, ``logit_body_fraction``).
-EIGEN_FLOOR = 1e-13
+#: (:func:`_positive_curvature`): the finite-difference Hessian does not resolve them.
+#: It was 1e-10 until 2026-11-27, and on long records that floor cut real curvature: on
+#: a 92 s record the Hessian's eigenvalues span 0.43 to 6.8e10 (the pitch gain-gravity
+#: balance against the prior-only inertia split), the two smallest were raised to 6.84,
+#: and the Laplace sd of the prior-dominated coordinates came out 0.38 where the exact
+#: Hessian and the NUTS posterior give 0.66 and 1.5 (``scale_noise``,
+#: ``logit_body_fraction``).  There the differences resolve 6e-12 of the largest (they
+#: match ``jax.jvp`` of the gradient to 8 digits); at a hybrid model's saddle the
+#: differences gave -6e-13 and 1.4e-12, unchecked, and 1e-13 let them widen the
+#: Laplace draws' network directions (tests/test_hybrid_posterior.py).
+EIGEN_FLOOR = 1e-12
 #: At most this many doublings of an accepted full Newton step (:func:`_extend`).
 NEWTON_EXTEND = 6
 

@@ -124,6 +124,24 @@ def test_log_prior_includes_the_change_of_variables(coords):
     assert np.isfinite(float(jax.grad(coords.log_prior)(jnp.asarray(z)).sum()))
 
 
+def test_the_closed_form_log_jacobian_is_the_dense_one(coords):
+    """``log |det dw/dz|`` from the map's triangular structure equals the dense
+    ``slogdet`` of the whole Jacobian (forward-mode autodiff of ``w(z)``), in value and
+    gradient, away from the parameters too."""
+    rng = np.random.default_rng(5)
+    z0 = np.asarray(coords.from_physical(_params(coords)))
+
+    def dense(z):
+        return jnp.linalg.slogdet(jax.jacfwd(coords.prior_coordinates)(z))[1]
+
+    for _ in range(4):
+        z = jnp.asarray(z0 + rng.normal(0.0, 0.5, z0.size))
+        got, expected = coords._log_jacobian(z), dense(z)
+        assert abs(float(got) - float(expected)) < JACOBIAN_RTOL * max(1.0, abs(float(expected)))
+        np.testing.assert_allclose(jax.grad(coords._log_jacobian)(z), jax.grad(dense)(z),
+                                   rtol=JACOBIAN_RTOL, atol=JACOBIAN_RTOL)  # fmt: skip
+
+
 def test_coordinates_of_effects_follow_their_declarations():
     """Scaled effect parameters get a ratio coordinate (to M22 on yaw, to M11 on pitch),
     unscaled ones their prior's own coordinate; no Table 2 name is needed for that."""

@@ -58,14 +58,11 @@ def heli_model(problem: Problem, y=None, mode: str = "fit"):
     coords = problem.coords
     n_z = len(coords.sampled_names)
     z = numpyro.sample("z", dist.ImproperUniform(constraints.real_vector, (), (n_z,)))
+    eps = numpyro.sample("scale_noise", dist.Normal(0.0, 1.0)) if coords.marginal_scale else None
+    log_prior, z, phys = coords.prior_and_physical(z, eps)
     if coords.marginal_scale:
-        eps = numpyro.sample("scale_noise", dist.Normal(0.0, 1.0))
-        log_prior, z = coords.marginal_log_prior(z, eps)
         numpyro.deterministic("log_J_pitch", z[0])
-    else:
-        log_prior = coords.log_prior(z)
     numpyro.factor("prior", log_prior)
-    phys = coords.to_physical(z)
     for name in coords.free:
         numpyro.deterministic(name, phys[name])
     x0_priors = [problem.priors.x0_prior(n, problem.x0_center) for n in X0_NAMES]

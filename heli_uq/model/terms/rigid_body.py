@@ -58,6 +58,7 @@ __all__ = [
     "body_coordinates",
     "body_to_ratios",
     "body_from_ratios",
+    "body_log_jacobian",
     "identifiable_combinations",
     "ratio_coordinates_allowed",
     "mechanics_null_directions",
@@ -132,6 +133,16 @@ def body_from_ratios(m11, gravity_ratio, body_fraction, h_over_r_c, fixed) -> di
     m_r_c = gravity_ratio * m11 / fixed["g"]
     r_c = body_fraction * m11 / ((1.0 + h_over_r_c**2) * m_r_c)
     return {"r_c": r_c, "m": m_r_c / r_c, "h": h_over_r_c * r_c, "J_bc": m11 * (1.0 - body_fraction)}
+
+
+def body_log_jacobian(body, with_h: bool):
+    """``log |det dw/dz|`` of the body block: ``w`` = (log r_c, log m, log J_bc[, h]),
+    the prior coordinates that :func:`ratio_coordinates_allowed` demands, and ``z`` =
+    :data:`BODY_COORDINATES` (without ``h_over_r_c`` when h is fixed).  The determinant is
+    ``-r_c`` with ``h`` (from ``dh / d(h/r_c) = r_c``) and ``-1`` without it (derived
+    symbolically; tests check it against the autodiff Jacobian).  ``body``: the
+    parameters, e.g. ``{"r_c": ..., ...}`` (jax-traceable)."""
+    return jnp.log(body["r_c"]) if with_h else jnp.zeros(())
 
 
 def ratio_coordinates_allowed(priors) -> bool:

@@ -295,8 +295,9 @@ class Coordinates:
         with the body's 3 x 3 or 4 x 4 block (:func:`body_log_jacobian`, closed form) and
         the scalars ``T'(x) S F'(z_i)`` on the diagonal (``T`` the prior's
         ``to_coordinate``).  The dense ``slogdet(jacfwd(prior_coordinates))``, which
-        differentiated the whole map in every direction, made a third of the compiled
-        gradient of the log density (tests check that the two agree).  ``mapped``: the
+        differentiated the whole map in every direction, made a sixth of the log
+        density's compiled gradient and a third of NUTS's compile time
+        (``studies/bench_nuts_trace.py``; tests check that the two agree).  ``mapped``: the
         result of :meth:`_physical_and_scales` at ``z`` when the caller has it.
         """
         if self.resolved == "log":  # w = z

@@ -246,9 +246,12 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         jax.eval_shape(init, jax.random.split(jax.random.PRNGKey(seed), chains), state.z)
     else:
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1,)))
-        batched = jax.jit(jax.vmap(potential))
-        w0 = initial_draws(lambda w: batched(jnp.asarray(w)), chains, smap.x_map.size, rng,
-                           on_failure="map")  # fmt: skip
+        # The finiteness check runs the density's own compiled potential draw by draw (the
+        # MAP compiled it) instead of compiling a batched one for a few evaluations.
+        def log_density(w):
+            return np.array([-float(density.potential_jit(x)) for x in smap.x(w)])
+
+        w0 = initial_draws(log_density, chains, smap.x_map.size, rng, on_failure="map")
         keys = jax.random.split(jax.random.PRNGKey(seed), chains)
         state, it = init(keys, jnp.asarray(w0)), 0
     total = warmup + draws

@@ -247,7 +247,8 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     else:
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1,)))
         # The finiteness check runs the density's own compiled potential draw by draw (the
-        # MAP compiled it) instead of compiling a batched one for a few evaluations.
+        # MAP compiled it) instead of compiling a batched one for a few evaluations.  It
+        # leaves out the map's log-determinant, which is finite: only finiteness decides.
         def log_density(w):
             return np.array([-float(density.potential_jit(x)) for x in smap.x(w)])
 

@@ -34,7 +34,7 @@ from heli_uq.inference.density import constrain_draws, coordinate_names, log_den
 from heli_uq.inference.interrupt import Interrupted, Progress, deferred_interrupt
 from heli_uq.inference.manifest import run_manifest
 from heli_uq.inference.start import Start, initial_draws, prepare_start
-from heli_uq.inference.whiten import SamplerMap, find_walls
+from heli_uq.inference.whiten import SamplerMap, choose_walls
 from heli_uq.io import require_memory
 from heli_uq.probability.problem import Problem
 
@@ -153,9 +153,12 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     ``L L^T``: the Laplace covariance), where the posterior is close to ``N(0, I)``; the
     Jacobian of this map is constant, so the target is unchanged.  Coordinates whose
     posterior has a one-sided exponential wall (a weakly identified positive parameter,
-    e.g. ``J_s``) get a ``log softplus`` map in addition, with its Jacobian
-    (:class:`~heli_uq.inference.whiten.SamplerMap`; ``walls`` in the run's info names
-    them): on the rig record this lets the step size double.  Warm-up adapts the step
+    e.g. ``J_s``), at the MAP or along the ridge the Laplace approximation follows, get a
+    ``log softplus`` map in addition, with its Jacobian
+    (:class:`~heli_uq.inference.whiten.SamplerMap`, chosen by
+    :func:`~heli_uq.inference.whiten.choose_walls`; ``wall_coordinates`` and
+    ``wall_sides`` in the run's info name them): on the rig record this lets the step
+    size double.  Warm-up adapts the step
     size and a dense mass matrix *in w*, starting from the identity.
 
     Why whiten instead of passing the Laplace covariance as the initial mass matrix:
@@ -216,7 +219,8 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     if info is None:
         start = prepare_start(problem, seed=seed) if start is None else start
         info = _start_info(start)
-        info["walls"] = list(find_walls(start.density.potential_jit, info["x_map"], info["covariance"]))
+        walls = choose_walls(start.density.potential_jit, info["x_map"], info["covariance"])
+        info["walls"] = [list(w) for w in walls]
         checkpoint.start_new(info, manifest)
         density = start.density
     else:
@@ -304,7 +308,8 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     out_info.update(sampler="nuts", chains=chains, warmup=warmup, draws=draws, seed=seed,
                     chain_method=method, warmup_seconds=warm_seconds,
                     coordinates="laplace_whitened",
-                    wall_coordinates=[coordinate_names(density)[i] for i in smap.walls],
+                    wall_coordinates=[coordinate_names(density)[i] for i in smap.indices],
+                    wall_sides=["above" if w.side > 0 else "below" for w in smap.walls],
                     step_size=np.asarray(state.adapt_state.step_size).tolist(),
                     target_accept=target_accept, max_tree_depth=max_tree_depth,
                     wall_seconds=time.perf_counter() - t_start)  # fmt: skip

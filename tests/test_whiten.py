@@ -68,6 +68,7 @@ def test_a_wall_along_a_ridge_is_found_below_and_shortens_the_trajectories():
     walls = choose_walls(f, x_map, cov)
     assert [(w.index, w.side) for w in walls] == [(0, -1.0)]
     assert (walls[0].side, walls[0].knee) in WALL_KINDS
+    assert choose_walls(f, x_map, cov, candidates=()) == ()  # only the candidates are probed
     steps = []
     for chosen in ((), walls):
         smap = SamplerMap(x_map, cov, chosen)

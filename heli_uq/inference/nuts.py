@@ -219,7 +219,8 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     if info is None:
         start = prepare_start(problem, seed=seed) if start is None else start
         info = _start_info(start)
-        walls = choose_walls(start.density.potential_jit, info["x_map"], info["covariance"])
+        logs = [i for i, name in enumerate(coordinate_names(start.density)) if name.startswith("z[log_")]
+        walls = choose_walls(start.density.potential_jit, info["x_map"], info["covariance"], logs)
         info["walls"] = [list(w) for w in walls]
         checkpoint.start_new(info, manifest)
         density = start.density

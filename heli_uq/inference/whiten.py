@@ -154,12 +154,16 @@ def _marginal_mismatch(potential, smap: SamplerMap, i: int, p0: float) -> float:
     return total
 
 
-def choose_walls(potential, x_map, covariance) -> tuple[Wall, ...]:
+def choose_walls(potential, x_map, covariance, candidates=None) -> tuple[Wall, ...]:
     """The walls of the sampler map: :func:`find_walls`, then walls along ridges.
 
     After the conditional test (walls above the MAP, knee at ``softplus = 1``), each
-    coordinate is probed along its marginal direction (:func:`_marginal_mismatch`).  The
-    worst coordinate whose mismatch exceeds :data:`WALL_MISMATCH` gets each wall of
+    coordinate of ``candidates`` (indices; default all) is probed along its marginal
+    direction (:func:`_marginal_mismatch`).  The maps make ``r`` or ``1 / r`` linear, so
+    they are meant for log coordinates ``x = log r`` of positive parameters (NUTS passes
+    those; a network weight's posterior is not Gaussian for other reasons, its sign and
+    permutation symmetries).  The worst candidate whose mismatch exceeds
+    :data:`WALL_MISMATCH` gets each wall of
     :data:`WALL_KINDS` in turn, and keeps the best if it cuts its mismatch
     :data:`WALL_GAIN` times; at most :data:`MAX_MARGINAL_WALLS` rounds, each with the walls
     kept so far.  About ``4 d`` evaluations of ``potential`` per round (``d``
@@ -172,7 +176,8 @@ def choose_walls(potential, x_map, covariance) -> tuple[Wall, ...]:
     """
     x_map = np.asarray(x_map, dtype=float)
     walls = [Wall(i) for i in find_walls(potential, x_map, covariance)]
-    tried = {w.index for w in walls}
+    allowed = set(range(x_map.size) if candidates is None else candidates)
+    tried = {w.index for w in walls} | (set(range(x_map.size)) - allowed)
     p0 = float(potential(jnp.asarray(x_map)))
     for _ in range(MAX_MARGINAL_WALLS):
         smap = SamplerMap(x_map, covariance, tuple(walls))

@@ -28,10 +28,10 @@ straight in ``1 / J_s`` and bent in ``log J_s``.  The conditional probe (the oth
 the MAP) sees nothing, the ridge is a quartic wall along the coordinate's *marginal*
 direction: on a 92 s yaw friction record the log density fell by 80 and 27 nats at -+2
 marginal standard deviations (a Gaussian: 2) and NUTS took 16-30 leapfrog steps per draw
-(warm-up: 50-63).  :func:`choose_walls` therefore probes every coordinate along its
-marginal direction and tries the maps of :data:`WALL_KINDS` where the log density is
-not Gaussian; there the reciprocal map (``s = -1``, ``c = 4``) brought the rises to 2.1
-and 2.5 nats.
+(about 50 in warm-up).  :func:`choose_walls` therefore probes every log coordinate of a
+positive parameter along its marginal direction and tries the maps of :data:`WALL_KINDS`
+where the log density is not Gaussian; there the reciprocal map (``s = -1``, ``c = 4``)
+brought the rises to 2.1 and 2.5 nats.
 
 ``g`` is a smooth bijection of the real line and the potential includes
 ``-sum log g'(y_i)``, so the target distribution is exactly the same whichever

@@ -179,11 +179,13 @@ def choose_walls(potential, x_map, covariance, candidates=None) -> tuple[Wall, .
     allowed = set(range(x_map.size) if candidates is None else candidates)
     tried = {w.index for w in walls} | (set(range(x_map.size)) - allowed)
     p0 = float(potential(jnp.asarray(x_map)))
+    scores = None
     for _ in range(MAX_MARGINAL_WALLS):
-        smap = SamplerMap(x_map, covariance, tuple(walls))
-        offset = p0 - float(smap.x_and_log_det(jnp.zeros(x_map.size))[1])
-        scores = [math.inf if i in tried else _marginal_mismatch(potential, smap, i, offset)
-                  for i in range(x_map.size)]  # fmt: skip
+        if scores is None:  # the probes of the walls kept so far (again only after a new wall)
+            smap = SamplerMap(x_map, covariance, tuple(walls))
+            offset = p0 - float(smap.x_and_log_det(jnp.zeros(x_map.size))[1])
+            scores = [math.inf if i in tried else _marginal_mismatch(potential, smap, i, offset)
+                      for i in range(x_map.size)]  # fmt: skip
         free = [i for i in range(x_map.size) if i not in tried and scores[i] > WALL_MISMATCH]
         if not free:
             break
@@ -198,6 +200,7 @@ def choose_walls(potential, x_map, covariance, candidates=None) -> tuple[Wall, .
                 best = (score, Wall(i, side, knee))
         if best[0] * WALL_GAIN < scores[i]:
             walls.append(best[1])
+            scores = None
     return tuple(walls)
 
 

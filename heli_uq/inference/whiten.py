@@ -141,7 +141,8 @@ def _marginal_mismatch(potential, smap: SamplerMap, i: int, p0: float) -> float:
     """``sum_k |rise_k - k^2 / 2|`` [nats] of ``-log p`` (with the map's log-Jacobian) at
     :data:`MARGINAL_PROBES` marginal standard deviations of ``y_i`` from the MAP, along the
     direction in which the Laplace approximation moves the other coordinates with it
-    (``inf`` if a probe is not finite).  ``p0``: the value at the MAP (``w = 0``)."""
+    (``inf`` if a probe is not finite).  ``p0``: ``potential`` at the MAP."""
+    p0 = p0 - float(smap.x_and_log_det(jnp.zeros(smap.x_map.size))[1])  # -log p in w at w = 0
     row = smap.lower[i]  # w = k L^T e_i / |L^T e_i| moves y along cov_y e_i / sd_i
     unit = row / np.linalg.norm(row)
     total = 0.0
@@ -183,8 +184,7 @@ def choose_walls(potential, x_map, covariance, candidates=None) -> tuple[Wall, .
     for _ in range(MAX_MARGINAL_WALLS):
         if scores is None:  # the probes of the walls kept so far (again only after a new wall)
             smap = SamplerMap(x_map, covariance, tuple(walls))
-            offset = p0 - float(smap.x_and_log_det(jnp.zeros(x_map.size))[1])
-            scores = [math.inf if i in tried else _marginal_mismatch(potential, smap, i, offset)
+            scores = [math.inf if i in tried else _marginal_mismatch(potential, smap, i, p0)
                       for i in range(x_map.size)]  # fmt: skip
         free = [i for i in range(x_map.size) if i not in tried and scores[i] > WALL_MISMATCH]
         if not free:
@@ -194,8 +194,7 @@ def choose_walls(potential, x_map, covariance, candidates=None) -> tuple[Wall, .
         best = (math.inf, None)
         for side, knee in WALL_KINDS:
             trial = SamplerMap(x_map, covariance, (*walls, Wall(i, side, knee)))
-            base = p0 - float(trial.x_and_log_det(jnp.zeros(x_map.size))[1])
-            score = _marginal_mismatch(potential, trial, i, base)
+            score = _marginal_mismatch(potential, trial, i, p0)
             if score < best[0]:
                 best = (score, Wall(i, side, knee))
         if best[0] * WALL_GAIN < scores[i]:

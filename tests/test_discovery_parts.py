@@ -406,14 +406,16 @@ def test_a_much_better_candidate_restarts_the_current_model_from_its_values():
 def test_the_refit_of_a_split_run_starts_from_the_candidates_map_alone(monkeypatch):
     """With a split the refit's posterior is conditioned on the fitting window, where the
     candidate's MAP is already the multi-start MAP of the same model: it is the only start.
-    On a single window (the posterior also sees the scoring part) the budget's starts too."""
+    On a single window (the posterior also sees the scoring part) the budget's starts too.
+    The budget's mass-matrix choice reaches the sampler: kept at the Laplace metric by the
+    quick budget, adapted by the full one."""
     from heli_uq.discovery import report
     from heli_uq.discovery.workflow import BUDGETS
 
     seen = []
 
     def fake_sample_posterior(record, out, **kw):
-        seen.append((kw["n_starts"], kw["guesses"], kw["train"], kw["test"]))
+        seen.append((kw["n_starts"], kw["guesses"], kw["train"], kw["test"], kw["adapt_mass_matrix"]))
         raise StopIteration
 
     monkeypatch.setattr(report, "sample_posterior", fake_sample_posterior)
@@ -422,6 +424,9 @@ def test_the_refit_of_a_split_run_starts_from_the_candidates_map_alone(monkeypat
     for test in ((91.0, 131.0), None):
         with pytest.raises(StopIteration):
             report._posterior(None, build_model([]), (0.0, 91.0), test, None, cost, 0, guess)
-    assert seen == [(1, (guess,), (0.0, 91.0), (91.0, 131.0)),
-                    (cost.n_starts, (guess,), (0.0, 91.0), None)]
-    assert cost.n_starts > 1
+    assert seen == [(1, (guess,), (0.0, 91.0), (91.0, 131.0), False),
+                    (cost.n_starts, (guess,), (0.0, 91.0), None, False)]
+    assert cost.n_starts > 1 and not cost.adapt_mass_matrix  # the quick refit keeps the Laplace metric
+    with pytest.raises(StopIteration):  # the full budget adapts a dense mass matrix
+        report._posterior(None, build_model([]), (0.0, 91.0), None, None, BUDGETS["full"], 0, guess)
+    assert seen[-1][-1] is True

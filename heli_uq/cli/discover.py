@@ -61,8 +61,9 @@ def add_parser(subparsers):
             "(each fit; a rerun with the same DIR reuses them) and DIR/refit/ (posterior)."
         ),
         epilog=(
-            "budgets: quick (2 MAP starts per candidate, NUTS 2 x (250 + 250)); full (4 starts,\n"
-            "  NUTS 4 x (1000 + 1000), NUTS also for the base model)\n\n"
+            "budgets: quick (2 MAP starts per candidate, NUTS 2 x (150 + 350) in the Laplace\n"
+            "  metric); full (4 starts, NUTS 4 x (1000 + 1000) with a dense mass matrix adapted,\n"
+            "  NUTS also for the base model)\n\n"
             "examples:\n"
             "  heli-uq discover experimental --train 0:91 --test 91:131 --max-effects 2 --out out/disc\n"
             "  heli-uq discover rec.csv --budget full --scheduler tcp://host:8786 --out out/rec\n\n"

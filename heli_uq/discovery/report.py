@@ -63,6 +63,7 @@ def _posterior(record, model, train, test, out, cost, seed, guess):
                                       error="iid", chains=cost.chains, warmup=cost.warmup,
                                       draws=cost.samples, seed=seed, progress=False,
                                       max_tree_depth=cost.max_tree_depth, n_starts=starts,
+                                      adapt_mass_matrix=cost.adapt_mass_matrix,
                                       guesses=(guess,))  # fmt: skip
     pp = idata.posterior_predictive
     y_sim = np.asarray(pp["y_sim"]).reshape((-1,) + pp["y_sim"].shape[2:])

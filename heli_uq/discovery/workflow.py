@@ -102,7 +102,8 @@ class Budget:
     matrix from windows of 25 and 50 draws, noisy in 18 dimensions, and the trees grew to
     38-49 leapfrog steps mid warm-up.  Measured on two 131 s records (README, discovery
     time): 2 x (150 + 350) without adaptation took 61 % and 76 % of the wall time of
-    2 x (250 + 250) with it, with more bulk and tail ESS on both.
+    2 x (250 + 250) with it, with more bulk ESS on both (and more tail ESS on the one where
+    both runs report it).
     """
 
     n_starts: int

@@ -94,16 +94,10 @@ class Budget:
     ``nuts_before``: the base model gets a NUTS posterior too (else its Laplace
     approximation is *before*); ``newton_steps``: of each MAP polish; ``max_tree_depth``:
     of the NUTS refit (a stiff friction model can otherwise spend 2^8 leapfrog steps per
-    draw; the health checks report saturation); ``adapt_mass_matrix``: the refit's warm-up
-    adapts a dense mass matrix in the Laplace-whitened coordinates (``False``: it adapts
-    the step size only and keeps the identity, i.e. the Laplace covariance).
-
-    The quick budget keeps the identity: from a warm-up of 250, numpyro estimates the dense
-    matrix from windows of 25 and 50 draws, noisy in 18 dimensions, and the trees grew to
-    38-49 leapfrog steps mid warm-up.  Measured on two 131 s records (README, discovery
-    time): 2 x (150 + 350) without adaptation took 61 % and 76 % of the wall time of
-    2 x (250 + 250) with it, with more bulk ESS on both (and more tail ESS on the one where
-    both runs report it).
+    draw; the health checks report saturation); ``adapt_mass_matrix``: the refit adapts a
+    dense mass matrix in the Laplace-whitened coordinates (``False``, the quick budget: the
+    step size only, the metric stays the Laplace covariance; a short warm-up's dense
+    estimates are noisy, README "Models beyond Table 2" has the measurements).
     """
 
     n_starts: int

@@ -90,14 +90,11 @@ class Budget:
     ``cold_starts``: starts of a candidate beyond its warm ones
     (:func:`~heli_uq.discovery.candidates.warm_starts`); ``draws``: Laplace draws per
     candidate; ``pair_top``: how many of the best singles are paired; ``chains, warmup,
-    samples``: the NUTS refit;
-    ``nuts_before``: the base model gets a NUTS posterior too (else its Laplace
-    approximation is *before*); ``newton_steps``: of each MAP polish; ``max_tree_depth``:
-    of the NUTS refit (a stiff friction model can otherwise spend 2^8 leapfrog steps per
-    draw; the health checks report saturation); ``adapt_mass_matrix``: the refit adapts a
-    dense mass matrix in the Laplace-whitened coordinates (``False``, the quick budget: the
-    step size only, the metric stays the Laplace covariance; a short warm-up's dense
-    estimates are noisy, README "Models beyond Table 2" has the measurements).
+    samples``: the NUTS refit; ``nuts_before``: the base model gets a NUTS posterior too
+    (else its Laplace approximation is *before*); ``newton_steps``: of each MAP polish;
+    ``max_tree_depth``: of the NUTS refit (a stiff friction model can otherwise spend 2^8
+    leapfrog steps per draw); ``adapt_mass_matrix``: the refit adapts a dense mass matrix in
+    whitened coordinates (``False``, quick: the Laplace covariance stays the metric).
     """
 
     n_starts: int
@@ -116,8 +113,7 @@ class Budget:
 BUDGETS = {"quick": Budget(n_starts=2, cold_starts=0, draws=64, pair_top=3, chains=2, warmup=150,
                            samples=350, max_tree_depth=6, adapt_mass_matrix=False),
            "full": Budget(n_starts=4, cold_starts=1, draws=200, pair_top=4, chains=4, warmup=1000,
-                          samples=1000,
-                          nuts_before=True, newton_steps=10)}
+                          samples=1000, nuts_before=True, newton_steps=10)}
 
 
 def _windows(record: Experiment, window, train, test):

@@ -2,12 +2,14 @@
 
 Every study appends one JSON object per run (or per measured case) to a ``.jsonl`` file
 under ``studies/results/``; :func:`provenance` gives the fields every such line carries
-(package and JAX versions, the command line, the wall time [s], the date, the CPU count).
+(package and JAX versions, the command line, the wall time [s], the date, the CPU count and
+the machine's speed on a fixed single-core workload, :func:`machine_reference`).
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import pathlib
 import sys
@@ -22,6 +24,31 @@ ROOT = pathlib.Path(os.environ.get("HELI_UQ_STUDY_ROOT") or pathlib.Path(__file_
 RESULTS = ROOT / "results"
 #: Directory of the study figures.
 FIGURES = ROOT / "figures"
+#: Iterations of the fixed workload of :func:`machine_reference`.
+REFERENCE_LOOPS = 2_000_000
+
+
+def machine_reference(repeats: int = 3) -> float:
+    """Seconds one core takes for a fixed workload, the fastest of ``repeats`` (about 0.15 s each here).
+
+    The machines these studies ran on differ in speed from day to day: the same test suite
+    from a fresh clone took 27-31 min on some days and 12 min on another (README, Tests and
+    CI).  A wall time means little without the speed it was measured at, so every result
+    line carries this reference (``machine_ref_s``): a loop of Python float arithmetic and
+    small numpy calls, single-threaded like XLA's compiler and the Python around it.  Divide
+    two runs' wall times by their references to compare them.
+    """
+    best = math.inf
+    a = np.full((4, 4), 0.25)
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        x = 0.0
+        for i in range(REFERENCE_LOOPS):
+            x += math.sin(i * 1e-3)
+            if i % 100 == 0:
+                a = np.tanh(a @ a + x * 1e-9)
+        best = min(best, time.perf_counter() - t0)
+    return best
 
 
 def provenance(script: str, argv, wall_s: float) -> dict:
@@ -46,7 +73,8 @@ def provenance(script: str, argv, wall_s: float) -> dict:
     argv = sys.argv[1:] if argv is None else list(argv)
     return {"heli_uq": heli_uq.__version__, "jax": jax.__version__,
             "argv": [pathlib.Path(script).name, *argv], "wall_s": float(wall_s),
-            "time": time.strftime("%Y-%m-%dT%H:%M:%S"), "cpu_count": os.cpu_count()}  # fmt: skip
+            "time": time.strftime("%Y-%m-%dT%H:%M:%S"), "cpu_count": os.cpu_count(),
+            "machine_ref_s": machine_reference()}  # fmt: skip
 
 
 def add_run_arguments(ap, name: str, *, chains: int, warmup: int, draws: int) -> None:

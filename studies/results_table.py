@@ -38,6 +38,8 @@ POSTERIOR_ROWS = (
      "the record starts at rest; converged)", "nuts_iid_friction_offset_yaw_full_rest.summary.json"),
     ("+ yaw coulomb_friction + yaw torque_offset, Laplace on 0–91 s, test 91–131 s (iid; Pareto k 0.87: "
      "UNCONVERGED)", "laplace_iid_friction_offset_yaw_train0-91_test91-131.summary.json"),
+    ("+ yaw coulomb_friction + yaw torque_offset, NUTS on 0–91 s, test 91–131 s (iid, 4 chains, ω_ψ(0) = 0; "
+     "converged)", "nuts_iid_friction_offset_yaw_train0-91_test91-131_rest.summary.json"),
 )
 
 

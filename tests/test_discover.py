@@ -139,6 +139,20 @@ def test_a_refit_that_predicts_worse_than_the_base_is_reported_not_passed_as_a_f
     assert warning in _decision(["yaw:deadband"], [], steps, before, worse_on_test)
 
 
+def test_the_decision_gives_the_gap_on_both_axes():
+    """A pitch effect's gain is on pitch (the 2026-11-27 pitch-friction record: held-out
+    pitch RMSE 7.9 -> 3.0 mrad, yaw at the noise throughout); the sentence once gave yaw only."""
+    from heli_uq.discovery.report import _decision
+
+    before = {"test": {"rmse_theta": 0.0079, "rmse_psi": 0.0080, "V": 1.3e-4, "coverage90_theta": 0.96,
+                       "coverage90_psi": 0.87}}  # fmt: skip
+    after = {"test": {"rmse_theta": 0.0030, "rmse_psi": 0.0080, "V": 7.2e-5, "coverage90_theta": 0.89,
+                      "coverage90_psi": 0.89}}  # fmt: skip
+    text = _decision(["pitch:coulomb_friction"], [], [{"score": 4305.0, "score_se": 917.0}], before, after)
+    assert "on the test window RMSE pitch 0.008 -> 0.003, yaw 0.008 -> 0.008 rad" in text
+    assert "90 % coverage pitch 96% -> 89%, yaw 87% -> 89%" in text
+
+
 def test_cli_cold_starts_override_the_budget(tmp_path, monkeypatch):
     """``--cold-starts N`` runs the chosen budget with N cold starts per candidate; without
     it the budget is passed by name."""

@@ -20,7 +20,7 @@ import numpy as np
 
 from heli_uq.data import unseen_inputs
 from heli_uq.discovery.candidates import FitTask, fitted_predictive
-from heli_uq.discovery.score import GAP_KEYS, MARGIN_PER_SAMPLE, gap_metrics
+from heli_uq.discovery.score import GAP_KEYS, MARGIN_PER_SAMPLE, gap_metrics, gap_text
 from heli_uq.figure import new_figure, save_figure
 from heli_uq.io import atomic_write_text
 from heli_uq.model import build_model
@@ -216,9 +216,8 @@ def _decision(added, rows, steps, before, after) -> str:
     worse = gap_warnings(before, after)
     warn = f" Warning: {'; '.join(worse)}." if worse else ""
     return (f"Added {names}: held-out score +{steps[0]['score']:.0f} ± {steps[0]['score_se']:.0f} nats "
-            f"over the base at the first step{tie}; yaw RMSE on the {w} window "
-            f"{before[w]['rmse_psi']:.3f} -> {after[w]['rmse_psi']:.3f} rad, yaw 90 % coverage "
-            f"{before[w]['coverage90_psi']:.0%} -> {after[w]['coverage90_psi']:.0%}.{warn}")  # fmt: skip
+            f"over the base at the first step{tie}; on the {w} window "
+            f"{gap_text(before[w], after[w])}.{warn}")  # fmt: skip
 
 
 def _candidates_figure(cands: list[dict], n_scored: int):
@@ -337,8 +336,8 @@ def _report(result, where, ranking, steps, base, budget, fit_window, score_windo
               "importance weights toward the posterior (ESS: their effective number); where Pareto k "
               "exceeds 0.7 the weights are not trusted and the predictive is the plug-in one at the "
               "MAP (marked *MAP*).", "",
-              "| step | effect | axis | score [nats] | SE | per sample | passes | held-out yaw RMSE | "
-              "held-out V | Pareto k (ESS) | fit [s] |",
+              "| step | effect | axis | score [nats] | SE | per sample | passes | "
+              "held-out RMSE pitch / yaw [rad] | held-out V | Pareto k (ESS) | fit [s] |",
               "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for c in result["candidates"]:
         if c.get("score") is None:
@@ -350,7 +349,8 @@ def _report(result, where, ranking, steps, base, budget, fit_window, score_windo
         k += " *MAP*" if imp.get("predictive") == "map" else ""
         lines.append(f"| {c['step']} | {c['effect']} | {c['axis']} | {c['score']:+.0f} | {c['score_se']:.0f} "
                      f"| {c['score_per_sample']:+.3f} | {'yes' if c['passes'] else 'no'} | "
-                     f"{held['rmse_psi']:.3f} | {held['V']:.3f} | {k} | {c['seconds']:.0f} |")  # fmt: skip
+                     f"{held['rmse_theta']:.3f} / {held['rmse_psi']:.3f} | {held['V']:.3f} | {k} | "
+                     f"{c['seconds']:.0f} |")  # fmt: skip
     lines += _closer_lines(result["candidates"], base["score"])
     lines += ["", "## 4. Steps", ""]
     for s in steps:

@@ -28,8 +28,8 @@ from scipy.special import logsumexp
 
 from heli_uq.output import predictive_metrics
 
-__all__ = ["input_blocks", "block_scores", "compare", "passes", "gap_metrics", "MIN_BLOCK_S", "MIN_BLOCKS",
-           "GAP_KEYS", "MARGIN_SE", "MARGIN_PER_SAMPLE"]  # fmt: skip
+__all__ = ["input_blocks", "block_scores", "compare", "passes", "gap_metrics", "gap_text", "MIN_BLOCK_S",
+           "MIN_BLOCKS", "GAP_KEYS", "MARGIN_SE", "MARGIN_PER_SAMPLE"]  # fmt: skip
 
 #: Shortest block [s]: shorter input segments are merged into the one before.
 MIN_BLOCK_S = 2.0
@@ -124,3 +124,18 @@ def gap_metrics(y_sim: np.ndarray, y_pred: np.ndarray, y_obs: np.ndarray) -> dic
     m = predictive_metrics(y_sim, y_pred, y_obs)
     return {"rmse_theta": m["rmse"]["theta"], "rmse_psi": m["rmse"]["psi"], "V": m["loss_v"],
             "coverage90_theta": m["coverage90"]["theta"], "coverage90_psi": m["coverage90"]["psi"]}
+
+
+def gap_text(gap: dict, after: dict | None = None, *, coverage: bool = True) -> str:
+    """Both axes' RMSE (and 90 % coverage) of a gap record (:func:`gap_metrics`), or
+    ``gap -> after`` for two, e.g. ``"RMSE pitch 0.008 -> 0.003, yaw 0.008 -> 0.008 rad,
+    90 % coverage pitch 96% -> 89%, yaw 87% -> 89%"``.  Both axes always: an effect named
+    for one axis can act on the other (a pitch dead band shifts yaw's torque)."""
+    def pair(key, fmt):
+        return f"{gap[key]:{fmt}}" + ("" if after is None else f" -> {after[key]:{fmt}}")
+
+    text = f"RMSE pitch {pair('rmse_theta', '.3f')}, yaw {pair('rmse_psi', '.3f')} rad"
+    if coverage:
+        text += (f", 90 % coverage pitch {pair('coverage90_theta', '.0%')}, "
+                 f"yaw {pair('coverage90_psi', '.0%')}")
+    return text

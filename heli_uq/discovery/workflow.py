@@ -64,6 +64,7 @@ from heli_uq.discovery.decide import choose, pair_members, rank
 from heli_uq.discovery.implied import base_features, effect_features, implied_torque
 from heli_uq.discovery.locate import locate
 from heli_uq.discovery.report import write_outputs
+from heli_uq.discovery.score import gap_text
 from heli_uq.discovery.sindy import rank_effects
 from heli_uq.errors import ParameterError
 from heli_uq.executor import TaskFailed, check_scheduler, run_tasks
@@ -222,8 +223,8 @@ def _run_round(tasks: dict, store: _Store, record, scheduler, log) -> dict:
             log(f"{step} failed ({result['error']})")
             return
         store.save(key, sigs[key], result)
-        log(f"{step} fitted in {result['seconds']:.0f} s, held-out psi RMSE "
-            f"{result['score']['rmse_psi']:.3f} rad")  # fmt: skip
+        log(f"{step} fitted in {result['seconds']:.0f} s, held-out "
+            f"{gap_text(result['score'], coverage=False)}")  # fmt: skip
 
     if todo:
         log(f"fitting {len(todo)} model(s) ({'serial' if scheduler == 'serial' else 'Dask'}): "
@@ -307,8 +308,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     a, b = base_fit.start.problem.windows()["train"]
     n_fit = b - a
     where = locate(base_fit, out)
-    say(f"base model: held-out yaw RMSE {base['score']['rmse_psi']:.3f} rad, 90 % coverage "
-        f"{base['score']['coverage90_psi']:.0%}; worst axis: {where['axis']}")  # fmt: skip
+    say(f"base model: held-out {gap_text(base['score'])}; worst axis: {where['axis']}")
 
     # 3. the torque the data imply, and the sparse regression
     fw = record.window(*fit_w)

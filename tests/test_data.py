@@ -139,6 +139,18 @@ def test_read_accepts_a_sample_time_repeated_with_rounding(tmp_path):
         read_record(write(tmp_path / "r2.csv", PLAIN_HEADER, rows))
 
 
+def test_read_accepts_later_rows_that_leave_the_sample_time_cell_out(tmp_path):
+    """A writer may drop the empty last cell (``1.3,0.5,-0.6,0.8`` for ``1.3,0.5,-0.6,0.8,``):
+    after the first data row the four cells are the four signals."""
+    rows = [r if i == 0 else r.rstrip(",") for i, r in enumerate(GOOD_ROWS)]
+    assert all(r.count(",") == 3 for r in rows[1:])
+    exp = read_record(write(tmp_path / "r.csv", PLAIN_HEADER, rows))
+    ref = read_record(write(tmp_path / "ref.csv", PLAIN_HEADER, GOOD_ROWS))
+    np.testing.assert_array_equal(exp.u, ref.u)
+    np.testing.assert_array_equal(exp.y, ref.y)
+    assert exp.dt == ref.dt
+
+
 def test_read_ignores_trailing_empty_line(tmp_path):
     path = write(tmp_path / "r.csv", PLAIN_HEADER, GOOD_ROWS + [""])
     assert read_record(path).n == len(GOOD_ROWS)
@@ -158,7 +170,8 @@ BAD_CASES = {
     "missing_header": (None, GOOD_ROWS, ["line 1", "missing header"]),
     "wrong_header": ("a,b,c,d,e", GOOD_ROWS, ["line 1", "unexpected header"]),
     "header_4_cols": ("u_theta,u_psi,theta,psi", GOOD_ROWS, ["line 1", "unexpected header"]),
-    "too_few_cells": (PLAIN_HEADER, _replace(2, "1.3,0.5,-0.6,0.8"), ["line 4", "found 4"]),
+    "too_few_cells": (PLAIN_HEADER, _replace(2, "1.3,0.5,-0.6"), ["line 4", "found 3"]),
+    "first_row_without_dt_cell": (PLAIN_HEADER, _replace(0, "1.2,0.7,-0.6,0.8"), ["line 2", "found 4"]),
     "too_many_cells": (PLAIN_HEADER, _replace(1, "1,2,3,4,,5"), ["line 3", "found 6"]),
     "blank_line_inside": (PLAIN_HEADER, _replace(1, ""), ["line 3", "found 0"]),
     "non_numeric": (PLAIN_HEADER, _replace(3, "1.4,0.6,abc,0.9,"), ["line 5", "column 3 (theta)",

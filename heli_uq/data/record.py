@@ -265,7 +265,7 @@ def read_record(path: str | os.PathLike) -> Experiment:
     path : str or path-like
         CSV file with a header (published or plain ``u_theta,u_psi,theta,psi,dt``) and
         at least 2 data rows; the sample time is in the first data row, and later rows
-        leave its cell empty or repeat it (to :data:`DT_REL_TOL`).
+        leave its cell empty, leave it out, or repeat it (to :data:`DT_REL_TOL`).
 
     Returns
     -------
@@ -312,8 +312,12 @@ def read_record(path: str | os.PathLike) -> Experiment:
     values = np.empty((len(rows) - 1, 4))
     dt = None
     for k, (line, row) in enumerate(rows[1:]):
+        if k > 0 and len(row) == len(COLUMNS) - 1:
+            row = [*row, ""]  # the empty sample-time cell left out (a writer that drops it)
         if len(row) != len(COLUMNS):
-            raise fail(line, None, f"expected {len(COLUMNS)} cells, found {len(row)}")
+            raise fail(line, None, f"expected {len(COLUMNS)} cells"
+                       + (f" ({len(COLUMNS) - 1} after the first data row)" if k > 0 else "")
+                       + f", found {len(row)}")
         for col, cell in enumerate(row):
             if col == 4 and k > 0 and cell.strip() == "":
                 continue

@@ -99,6 +99,42 @@ def test_newton_polish_converges_from_the_steep_side_of_an_exponential_wall():
     assert decrement < 1e-12 and steps < 20
 
 
+#: Size of the rounding-like noise put on the gradient below [nats per unit of x].
+GRADIENT_NOISE = 1e-6
+
+
+def test_newton_polish_stops_where_the_value_cannot_resolve_the_predicted_gain():
+    """-log p = 71423 + |x - m|^2 / 2 in 20 dimensions (a 92 s record's value and a
+    friction model's size) with a gradient off by ~1e-6 at random, as rounding over ~1e4
+    likelihood terms leaves it: the decrement floors near 1e-11, above NEWTON_TOL, and a
+    polish that waits for NEWTON_TOL spends every step (a stiff friction refit: 200 steps,
+    125 s, the value unchanged; this test too, before the floor)."""
+    import jax
+
+    from heli_uq.inference.map import NEWTON_STEPS, NEWTON_TOL, VALUE_RESOLUTION, newton_converged
+
+    m = np.linspace(-2.0, 2.0, 20)
+
+    @jax.custom_jvp
+    def potential(x):
+        return 71423.0 + 0.5 * jnp.sum((x - m) ** 2)
+
+    @potential.defjvp
+    def _jvp(primals, tangents):
+        (x,), (dx,) = primals, tangents
+        noisy = (x - m) + GRADIENT_NOISE * jnp.sin(1e12 * x)
+        return potential(x), noisy @ dx
+
+    density = LogDensity(None, potential, None, np.zeros(20))
+    x, value, _, decrement, steps = newton_polish(density, m + 1.0)
+    assert steps < NEWTON_STEPS // 10
+    assert 0.5 * np.sum((x - m) ** 2) < VALUE_RESOLUTION * value  # the gain left [nats]
+    assert newton_converged(decrement, value) and not decrement < NEWTON_TOL
+    # the floor is relative to the value: a value near 0 still needs NEWTON_TOL
+    assert not newton_converged(1e-14, 1e-3) and newton_converged(1e-14, 71423.0)
+    assert VALUE_RESOLUTION * 71423.0 < 1e-7  # what is left is far below any nat that matters
+
+
 def test_find_map_scouts_every_start_then_polishes_the_best_to_convergence(monkeypatch):
     # Two starts on the quartic of the first test; with one scouting step each, only the
     # continuation of the better one can reach the optimum.

@@ -18,9 +18,9 @@ import optax
 from heli_uq.errors import ParameterError
 from heli_uq.inference.density import LogDensity
 
-__all__ = ["MapResult", "find_map", "newton_polish", "newton_converged", "laplace", "leave_saddles",
-           "HESSIAN_STEP", "NEWTON_STEPS", "NEWTON_TOL", "VALUE_RESOLUTION", "NEWTON_EXTEND",
-           "NEWTON_SCOUT_STEPS", "EIGEN_FLOOR"]  # fmt: skip
+__all__ = ["MapResult", "find_map", "newton_polish", "laplace", "leave_saddles", "HESSIAN_STEP",
+           "NEWTON_STEPS", "NEWTON_TOL", "VALUE_RESOLUTION", "NEWTON_STALL_STEPS", "NEWTON_STALL_FACTOR",
+           "NEWTON_EXTEND", "NEWTON_SCOUT_STEPS", "EIGEN_FLOOR"]  # fmt: skip
 
 #: Relative step of the finite-difference Hessian (of the analytic gradient).
 HESSIAN_STEP = 1e-5
@@ -31,7 +31,7 @@ HESSIAN_RETRIES = 3
 
 #: Newton polish of :func:`find_map`: at most this many steps, stopping once the Newton
 #: decrement ``g^T H^-1 g`` (twice the predicted decrease of ``-log p``) is below
-#: :data:`NEWTON_TOL` (or the value's resolution, :func:`newton_converged`).  From a good
+#: :data:`NEWTON_TOL` (or stalls below the value's resolution, :data:`NEWTON_STALL_STEPS`).  From a good
 #: start it converges in 3-10 steps; from a poor one (a least-squares start near a saddle: a
 #: 21 s record with a yaw torque offset needed 101 steps and gained 2700 nats over the 20th)
 #: it needs many, so the cap is generous and a converged polish stops early.
@@ -39,12 +39,16 @@ NEWTON_STEPS = 200
 #: With several starts, each gets this many Newton steps; only the best continues.
 NEWTON_SCOUT_STEPS = 20
 NEWTON_TOL = 1e-15
-#: Relative resolution of ``-log p`` below which a predicted decrease counts as none
-#: (1000 float64 epsilons): a sum of ~1e4 likelihood terms carries rounding of about this
-#: size, so Newton steps that promise less only move along rounding.  Without this floor
-#: a polish at -log p = -71423 (a stiff friction refit) spent all 200 steps and 125 s with
-#: the decrement at 1e-14 (a predicted gain of 5e-15 nats) and the value unchanged.
+#: Relative resolution of ``-log p`` (1000 float64 epsilons): a sum of ~1e4 likelihood
+#: terms carries rounding of about this size.  Below it Newton steps still improve ``x``
+#: while the gradient is clean (the decrement keeps falling fast), but with rounding in the
+#: gradient the decrement stalls: a polish at -log p = -71423 (a stiff friction refit)
+#: spent all 200 steps and 125 s with the decrement at 1e-14 and the value unchanged.  So
+#: the polish stops after :data:`NEWTON_STALL_STEPS` steps in a row below this floor
+#: whose decrement fell by less than :data:`NEWTON_STALL_FACTOR`.
 VALUE_RESOLUTION = 1e3 * float(np.finfo(float).eps)
+NEWTON_STALL_STEPS = 3
+NEWTON_STALL_FACTOR = 0.1
 #: Eigenvalues of a Hessian below this fraction of its largest magnitude are raised to it
 #: (:func:`_positive_curvature`): the finite-difference Hessian does not resolve them.
 #: It was 1e-10 until 2026-11-27, and on long records that floor cut real curvature: on
@@ -137,7 +141,7 @@ def find_map(density: LogDensity, starts: list[np.ndarray], *, maxiter: int = 20
         results.append((v if ok else np.inf, xs, int(k), polish))
     i_best = min(range(len(results)), key=lambda i: results[i][0])
     best = results[i_best]
-    if scout < newton_steps and np.isfinite(best[0]) and not newton_converged(best[3][1], best[0]):
+    if scout < newton_steps and np.isfinite(best[0]) and not best[3][1] < NEWTON_TOL:
         xs, v, *polish = newton_polish(density, best[1], newton_steps - scout)
         polish[2] += best[3][2]
         if np.isfinite(v) and np.all(np.isfinite(xs)):
@@ -187,28 +191,22 @@ def _positive_curvature(h: np.ndarray):
     return np.maximum(w, max(w.max(), 1.0) * EIGEN_FLOOR), v
 
 
-def newton_converged(decrement: float, value: float) -> bool:
-    """Whether a Newton decrement (twice the predicted decrease of ``-log p``) leaves
-    nothing to gain: below :data:`NEWTON_TOL`, or below what ``value`` (``-log p``)
-    resolves (:data:`VALUE_RESOLUTION` of its magnitude)."""
-    return bool(decrement < max(NEWTON_TOL, VALUE_RESOLUTION * abs(value)))
-
-
 def newton_polish(density: LogDensity, x: np.ndarray, steps: int = NEWTON_STEPS):
     """Damped Newton iterations on ``density.potential`` from ``x``.
 
     The Hessian is :func:`_fd_hessian` with eigenvalues replaced by their absolute values
     (floored), so every step is a descent direction; a backtracking line search accepts
-    only steps that decrease ``-log p``.  Stops when the step has nothing left to gain
-    (:func:`newton_converged`) or a step fails.
+    only steps that decrease ``-log p``.  Stops when the Newton decrement is below
+    :data:`NEWTON_TOL`, when it stalls below the value's resolution
+    (:data:`VALUE_RESOLUTION`, :data:`NEWTON_STALL_STEPS`) or a step fails.
 
     Returns ``(x, value, max |grad|, newton decrement, steps taken)``.
     """
     f, grad = density.potential_jit, density.grad_jit
     x = np.asarray(x, dtype=float)
     value = float(f(x))
-    taken = 0
-    decrement = float("nan")
+    taken = stalled = 0
+    decrement = previous = float("nan")
     for _ in range(steps + 1):
         g = np.asarray(grad(x))
         h = _fd_hessian(grad, x)
@@ -217,8 +215,11 @@ def newton_polish(density: LogDensity, x: np.ndarray, steps: int = NEWTON_STEPS)
         w, v = _positive_curvature(h)
         step = -(v / w) @ (v.T @ g)
         decrement = float(-g @ step)
-        if newton_converged(decrement, value) or taken == steps:
+        below = decrement < VALUE_RESOLUTION * abs(value)
+        stalled = stalled + 1 if below and not decrement < NEWTON_STALL_FACTOR * previous else 0
+        if decrement < NEWTON_TOL or stalled >= NEWTON_STALL_STEPS or taken == steps:
             break
+        previous = decrement
         t = 1.0
         for _ in range(30):
             new = float(f(x + t * step))

@@ -27,6 +27,28 @@ def progress_log(log: Callable[[str], None] | None, name: str) -> Callable[[str]
     return log if log is not None else logging.getLogger(name).info
 
 
+class _LevelFormatter(logging.Formatter):
+    """``"warning: <message>"``: the level in lower case, as the CLI's ``error:`` lines."""
+
+    def format(self, record):
+        return f"{record.levelname.lower()}: {record.getMessage()}"
+
+
+class _StderrHandler(logging.StreamHandler):
+    """Writes to whatever ``sys.stderr`` is at the time of each message."""
+
+    def __init__(self):
+        super().__init__(sys.stderr)
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):  # set by StreamHandler.__init__; always sys.stderr instead
+        pass
+
+
 class _StdoutHandler(logging.StreamHandler):
     """Writes to whatever ``sys.stdout`` is at the time of each message (so redirections made
     after configuration, e.g. by a test's capture, are honoured)."""
@@ -44,12 +66,18 @@ class _StdoutHandler(logging.StreamHandler):
 
 
 def configure_cli(quiet: bool) -> None:
-    """Show the package's INFO messages on stdout, one line each (warnings and errors go on
-    to stderr through logging's usual path), or none of them when ``quiet``.  Idempotent."""
+    """Show the package's INFO messages on stdout, one line each, or none of them when
+    ``quiet``; warnings and errors go to stderr as one line ``warning: <message>`` either
+    way (logging's own last-resort output stops as soon as the logger has any handler).
+    Idempotent."""
     logger = logging.getLogger(LOGGER_NAME)
-    for handler in [h for h in logger.handlers if isinstance(h, _StdoutHandler)]:
+    for handler in [h for h in logger.handlers if isinstance(h, _StdoutHandler | _StderrHandler)]:
         logger.removeHandler(handler)
     logger.setLevel(logging.WARNING if quiet else logging.INFO)
+    warning = _StderrHandler()
+    warning.setLevel(logging.WARNING)
+    warning.setFormatter(_LevelFormatter())
+    logger.addHandler(warning)
     if not quiet:
         handler = _StdoutHandler()
         handler.setFormatter(logging.Formatter("%(message)s"))

@@ -356,6 +356,21 @@ def test_data_show_window(tmp_path, capsys, small_record):
     assert "N = 20" in stdout
 
 
+@pytest.mark.parametrize("quiet", [False, True])
+def test_a_package_warning_reaches_stderr_as_one_line(tmp_path, capsys, quiet):
+    """The reader's warning on a wrapped yaw is shown, quiet or not, as one stderr line
+    (with a handler on the package logger, logging's own last-resort output is off)."""
+    k = np.arange(300)
+    y = np.column_stack([-0.6 + 0 * k, np.angle(np.exp(1j * (0.3 + 0.03 * k)))])
+    path = Experiment(k * 0.01, np.full((k.size, 2), 1.0), y, 0.01, "w").to_csv(tmp_path / "w.csv")
+    code, stdout, err = run(capsys, "data", "show", str(path), "--out", str(tmp_path / "d"),
+                            *(["--quiet"] if quiet else []))
+    assert code == 0, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("warning: ") and "(psi) wraps by 2π" in lines[0]
+    assert quiet or "psi 17.19..531.1 deg" in stdout  # read continuous: 0.3 + 0.03 * 299 rad
+
+
 @pytest.mark.parametrize("window", ["2:3", "0.5:0.1", "abc"])
 def test_data_show_bad_window(tmp_path, capsys, small_record, window):
     code, _, err = run(capsys, "data", "show", str(small_record), "--window", window,

@@ -39,6 +39,7 @@ needs_real = pytest.mark.skipif(
 )
 
 TIME_ATOL = 1e-9  # [s] absolute tolerance on sample times computed as k*dt
+UNWRAP_ATOL = 1e-12  # [rad] unwrapping adds and removes 2π: a few ulps of 20 rad
 NOISE_STD_RTOL = 0.05  # relative error of a std estimated from 2 x 20,000 samples (~0.5% sd)
 
 PLAIN_HEADER = "u_theta,u_psi,theta,psi,dt"
@@ -149,6 +150,42 @@ def test_read_accepts_later_rows_that_leave_the_sample_time_cell_out(tmp_path):
     np.testing.assert_array_equal(exp.u, ref.u)
     np.testing.assert_array_equal(exp.y, ref.y)
     assert exp.dt == ref.dt
+
+
+@pytest.mark.parametrize("col", [2, 3])
+def test_read_unwraps_an_angle_a_writer_wrapped_into_two_pi(tmp_path, caplog, col):
+    """A yaw that turns 3.5 times (or a pitch that turns over), written wrapped into
+    (-π, π] as some simulators and encoders do, is read back as the continuous angle,
+    and the warning names the column and the lines where it wrapped."""
+    k = np.arange(400)
+    y = np.column_stack([-0.6 + 0.001 * k, 0.8 + 0.002 * k])
+    y[:, col - 2] = 0.3 + 0.055 * k  # to 22.2 rad: 3.5 turns, 0.055 rad per sample
+    exp = Experiment(k * 0.01, np.full((k.size, 2), 1.0), y, 0.01, "test")
+    path = exp.to_csv(tmp_path / "spin.csv")
+    wrapped = np.angle(np.exp(1j * y[:, col - 2]))
+    lines = path.read_text(encoding="utf-8-sig").splitlines()
+    for i, value in enumerate(wrapped):
+        cells = lines[i + 1].split(",")
+        cells[col] = repr(float(value))
+        lines[i + 1] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with caplog.at_level("WARNING", logger="heli_uq"):
+        back = read_record(path)
+    np.testing.assert_allclose(back.y, y, rtol=0, atol=UNWRAP_ATOL)
+    wraps = np.flatnonzero(np.abs(np.diff(wrapped)) > np.pi) + 3  # 1-based line, after the header
+    assert wraps.size == 4  # at π, 3π, 5π, 7π
+    message = caplog.text
+    assert path.name in message and f"({('theta', 'psi')[col - 2]})" in message
+    assert f"at 4 line(s) ({', '.join(map(str, wraps))})" in message
+
+
+def test_read_refuses_a_jump_that_is_not_a_wrap(tmp_path):
+    """A 4 rad jump in one sample is neither motion nor a 2π wrap: refused with its line."""
+    path = write(tmp_path / "jump.csv", PLAIN_HEADER, _replace(2, "1.3,0.5,-0.6,4.8,"))
+    with pytest.raises(DataFormatError) as info:
+        read_record(path)
+    assert "line 4, column 4 (psi)" in str(info.value)
+    assert "+3.973 rad" in str(info.value)
 
 
 def test_read_ignores_trailing_empty_line(tmp_path):

@@ -18,12 +18,12 @@ from heli_uq.data.experimental import (
 )
 from heli_uq.data.experimental import load_data as load_data
 from heli_uq.data.experimental import load_experimental as load_experimental
+from heli_uq.data.inputs import unseen_inputs as unseen_inputs
 from heli_uq.data.record import COLUMNS as COLUMNS
 from heli_uq.data.record import HEADER as HEADER
 from heli_uq.data.record import Experiment as Experiment
 from heli_uq.data.record import parse_window as parse_window
 from heli_uq.data.record import read_record as read_record
-from heli_uq.data.record import unseen_inputs as unseen_inputs
 
 __all__ = [
     "DATA_ENV_VAR", "EXPERIMENTAL_FILENAME", "EXPERIMENTAL_SHA256", "EXPERIMENTAL_URL",

@@ -16,6 +16,7 @@ the first data row only.  Inputs are zero-order held: ``u[k]`` acts on
 from __future__ import annotations
 
 import csv
+import logging
 import math
 import os
 from dataclasses import dataclass
@@ -26,7 +27,7 @@ import numpy as np
 from heli_uq.errors import DataFormatError, ParameterError
 from heli_uq.io import atomic_write_bytes
 
-__all__ = ["COLUMNS", "HEADER", "Experiment", "parse_window", "read_record", "unseen_inputs"]
+__all__ = ["COLUMNS", "HEADER", "Experiment", "parse_window", "read_record"]
 
 #: Relative difference at which a repeated sample time counts as a different one (a
 #: writer that prints dt on every row may round it).
@@ -41,6 +42,13 @@ HEADER = (
     r"Yaw angle $\psi$ [rad]",
     r"Sample time $\Delta t$ [s]",
 )
+
+#: An angle that changes by more than this in one sample [rad] has not moved: it was
+#: wrapped into a 2π interval by the writer (a rig's yaw turns < 0.1 rad per 0.01 s).
+MAX_ANGLE_STEP = math.pi
+#: A wrap is a jump within this [rad] of a multiple of 2π; any other jump beyond
+#: :data:`MAX_ANGLE_STEP` is refused.
+WRAP_RESIDUAL = 0.5
 
 # Relative tolerance on grid arithmetic (time spacing, window edges), in units of dt.
 _GRID_RTOL = 1e-6
@@ -265,7 +273,8 @@ def read_record(path: str | os.PathLike) -> Experiment:
     path : str or path-like
         CSV file with a header (published or plain ``u_theta,u_psi,theta,psi,dt``) and
         at least 2 data rows; the sample time is in the first data row, and later rows
-        leave its cell empty, leave it out, or repeat it (to :data:`DT_REL_TOL`).
+        leave its cell empty, leave it out, or repeat it (to :data:`DT_REL_TOL`).  Angles
+        wrapped into a 2π interval by the writer are unwrapped, with a warning.
 
     Returns
     -------
@@ -337,30 +346,34 @@ def read_record(path: str | os.PathLike) -> Experiment:
             elif not math.isclose(x, dt, rel_tol=DT_REL_TOL):
                 raise fail(line, col, f"sample time {cell!r} differs from {dt!r} in line "
                            f"{rows[1][0]}; expected an empty cell")
+    _unwrap_angles(values, [line for line, _ in rows[1:]], fail, path)
     n = values.shape[0]
     return Experiment(np.arange(n) * dt, values[:, :2], values[:, 2:], dt, str(path))
 
 
-def unseen_inputs(u_seen, u) -> np.ndarray:
-    """Which samples of ``u`` hold a voltage pair that ``u_seen`` never holds.
+def _unwrap_angles(values: np.ndarray, lines: list[int], fail, path) -> None:
+    """Undo, in place, a writer's wrapping of the angles (columns 2, 3) into a 2π interval.
 
-    A model fitted on one window predicts another by extrapolating in the inputs at these
-    samples: a gain error or an input nonlinearity (a network of ``u`` above all) is
-    unconstrained there.
-
-    Parameters
-    ----------
-    u_seen : array_like, shape (M, 2)
-        Voltages [V] of the window a model was fitted on.
-    u : array_like, shape (N, 2)
-        Voltages [V] of the window it predicts.
-
-    Returns
-    -------
-    ndarray of bool, shape (N,)
-        True where the pair ``u[k]`` is not a row of ``u_seen`` (exact equality: the
-        voltages of a record are read from the same printed values).
+    A jump beyond :data:`MAX_ANGLE_STEP` between two samples within :data:`WRAP_RESIDUAL` of
+    a multiple of 2π is removed from that sample on, with a warning naming the lines; any
+    other such jump raises ``fail(line, column, message)``.
     """
-    u_seen, u = np.asarray(u_seen, dtype=float).reshape(-1, 2), np.asarray(u, dtype=float).reshape(-1, 2)
-    seen = {tuple(q) for q in np.unique(u_seen, axis=0)}
-    return np.array([tuple(q) not in seen for q in u], dtype=bool)
+    for col in (2, 3):
+        step = np.diff(values[:, col])
+        jumps = np.flatnonzero(np.abs(step) > MAX_ANGLE_STEP)
+        if jumps.size == 0:
+            continue
+        turns = np.round(step[jumps] / (2 * np.pi))
+        bad = np.abs(step[jumps] - 2 * np.pi * turns) > WRAP_RESIDUAL
+        if bad.any():
+            j = int(jumps[bad][0])
+            raise fail(lines[j + 1], col, f"jumps by {step[j]:+.3f} rad from the line before: "
+                       f"expected less than {MAX_ANGLE_STEP:.3f} rad per sample, or a wrap "
+                       f"by a multiple of 2π")
+        shift = np.zeros(values.shape[0])
+        shift[jumps + 1] = 2 * np.pi * turns
+        values[:, col] -= np.cumsum(shift)
+        shown = ", ".join(str(lines[j + 1]) for j in jumps[:5]) + (" ..." if jumps.size > 5 else "")
+        logging.getLogger(__name__).warning(
+            f"{path}: column {col + 1} ({COLUMNS[col]}) wraps by 2π at {jumps.size} line(s) "
+            f"({shown}); read as a continuous angle")

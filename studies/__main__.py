@@ -141,12 +141,14 @@ STUDIES = (
 )
 
 
-def _provenance() -> dict:
-    import heli_uq
+def _provenance(size: str, wall_s: float) -> dict:
+    """The fields of every study's result line (:func:`studies._study.provenance`, with the
+    machine's reference time) and the commit."""
+    from studies._study import provenance
 
     git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True)
-    return {"heli_uq": heli_uq.__version__, "commit": git.stdout.strip() or None,
-            "time": time.strftime("%Y-%m-%dT%H:%M:%S"), "cpu_count": os.cpu_count()}
+    return {**provenance("__main__.py", ["run", "--size", size], wall_s),
+            "commit": git.stdout.strip() or None}
 
 
 def run(size: str, only=(), root: pathlib.Path | None = None) -> int:
@@ -169,7 +171,7 @@ def run(size: str, only=(), root: pathlib.Path | None = None) -> int:
                 break
         wall = time.perf_counter() - t0
         failed += status != 0
-        row = {"study": study.name, "size": size, "status": status, "wall_s": wall, **_provenance()}
+        row = {"study": study.name, "size": size, "status": status, **_provenance(size, wall)}
         with open(log, "a", encoding="utf-8") as fh:
             fh.write(json.dumps(row) + "\n")
         print(f"[{study.name}] {'ok' if status == 0 else f'FAILED (exit {status})'} in {wall:.0f} s", flush=True)

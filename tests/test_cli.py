@@ -16,6 +16,8 @@ import pytest
 
 from heli_uq.cli import main
 from heli_uq.data import EXPERIMENTAL_FILENAME, Experiment, read_record
+from heli_uq.errors import ParameterError
+from heli_uq.model import TABLE2
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 REAL_DIR = Path(os.environ.get("HELI_UQ_DATA") or REPO_ROOT.parent / "shared" / "data")
@@ -467,6 +469,34 @@ def test_bad_models_and_priors_are_one_line(tmp_path, capsys, small_record, argv
                             "--out", str(tmp_path / "o"))  # fmt: skip
     assert code == 2
     assert_one_line_error(err, *needles)
+
+
+def test_init_is_the_first_map_start_and_a_bad_one_is_one_line(tmp_path, capsys, small_record,
+                                                                monkeypatch):
+    """``--init FILE.json`` reaches the MAP as its first guess, completed with the model's
+    defaults; an unknown name in it is refused in one line that names the file."""
+    from heli_uq.output import posterior_study
+
+    seen = {}
+
+    def fake_sample_posterior(record, out, **kwargs):
+        seen.update(kwargs)
+        raise ParameterError("stopped by the test")
+
+    monkeypatch.setattr(posterior_study, "sample_posterior", fake_sample_posterior)
+    init = tmp_path / "fit.json"
+    init.write_text('{"J_s": 0.00025, "F_c_yaw": 0.013}')
+    argv = ["sample", "--data", str(small_record), "--effects", "yaw:coulomb_friction",
+            "--out", str(tmp_path / "o")]  # fmt: skip
+    code, _, err = run(capsys, *argv, "--init", str(init))
+    assert code == 2 and "stopped by the test" in err
+    (guess,) = seen["guesses"]
+    assert guess["J_s"] == 0.00025 and guess["F_c_yaw"] == 0.013
+    assert guess["m"] == TABLE2["m"]  # completed with the defaults
+    init.write_text('{"J_s": 0.00025, "F_s_yaw": 0.002}')  # not a parameter of this model
+    code, _, err = run(capsys, *argv, "--init", str(init))
+    assert code == 2
+    assert_one_line_error(err, "fit.json", "F_s_yaw")
 
 
 def test_commands_keep_compiled_programs_on_disk(tmp_path):

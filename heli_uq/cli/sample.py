@@ -26,6 +26,7 @@ def cmd_sample(args) -> int:
 
     from heli_uq.data import load_data, parse_window
     from heli_uq.inference import TARGET_ACCEPT
+    from heli_uq.model import load_params_json
     from heli_uq.output.posterior_study import sample_posterior
 
     check_positive(args, ("chains", "warmup", "draws", "max_tree_depth"))
@@ -36,6 +37,7 @@ def cmd_sample(args) -> int:
         numpyro.set_host_device_count(args.chains)
     model = model_from_args(args)
     priors = priors_from_args(args, model)
+    guesses = [] if args.init is None else [load_params_json(args.init, model)]
     record = load_data(args.data)
     if args.window is not None:
         record = record.window(*parse_window(args.window))
@@ -50,7 +52,7 @@ def cmd_sample(args) -> int:
         seed=args.seed, resume=args.resume, progress=not args.no_progress,
         walkers=args.walkers, adapt_mass_matrix=args.adapt_mass_matrix == "on",
         target_accept=target_accept, network_posterior=args.nn_posterior or "full",
-        max_tree_depth=args.max_tree_depth,
+        max_tree_depth=args.max_tree_depth, guesses=guesses,
     )  # fmt: skip
     keys = ("rhat_max", "ess_bulk_min", "ess_tail_min", "divergences", "rmse", "coverage90",
             "rmse_test", "coverage90_test", "solver_error_rad", "wall_s", "rhat_max_network_torque",
@@ -93,6 +95,8 @@ def add_parser(subparsers):
             "  heli-uq sample --data experimental --window 0:30 --sampler emcee --out out/em\n"
             "  heli-uq sample --data rec.csv --effects yaw:coulomb_friction --error iid \\\n"
             "      --out out/friction\n"
+            "  heli-uq sample --data rec.csv --effects yaw:coulomb_friction,yaw:stiction \\\n"
+            "      --init friction_fit.json --error iid --out out/stiction\n"
             "  heli-uq sample --data experimental --model hybrid --nn-inputs u --error iid \\\n"
             "      --target-accept 0.95 --train 0:91 --test 91:131 --out out/hybrid\n\n"
             "hybrid: R-hat and ESS are judged on the physical parameters and on the network's\n"
@@ -126,6 +130,11 @@ def add_parser(subparsers):
                    help="training window [s] (default: the whole (windowed) record)")
     p.add_argument("--test", metavar="C:D", default=None,
                    help="held-out test window [s], after the training window")
+    p.add_argument("--init", metavar="FILE.json", default=None,
+                   help="the first MAP start: parameter values as 'simulate --params' reads them"
+                        " (missing names take the model's defaults), e.g. a fit of a smaller"
+                        " model the new one nests, whose own starts may land in a worse basin;"
+                        " the initial state is fitted from the record as always")
     p.add_argument("--chains", type=int, default=4,
                    help="NUTS chains, or emcee ensembles (default: 4)")
     p.add_argument("--warmup", type=int, default=1000,

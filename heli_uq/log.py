@@ -34,34 +34,20 @@ class _LevelFormatter(logging.Formatter):
         return f"{record.levelname.lower()}: {record.getMessage()}"
 
 
-class _StderrHandler(logging.StreamHandler):
-    """Writes to whatever ``sys.stderr`` is at the time of each message."""
+class _SysStreamHandler(logging.StreamHandler):
+    """Writes to whatever ``sys.<name>`` (``stdout`` or ``stderr``) is at the time of each
+    message, so redirections made after configuration (e.g. a test's capture) are honoured."""
 
-    def __init__(self):
-        super().__init__(sys.stderr)
-
-    @property
-    def stream(self):
-        return sys.stderr
-
-    @stream.setter
-    def stream(self, value):  # set by StreamHandler.__init__; always sys.stderr instead
-        pass
-
-
-class _StdoutHandler(logging.StreamHandler):
-    """Writes to whatever ``sys.stdout`` is at the time of each message (so redirections made
-    after configuration, e.g. by a test's capture, are honoured)."""
-
-    def __init__(self):
-        super().__init__(sys.stdout)
+    def __init__(self, name: str):
+        self._sys_name = name
+        super().__init__(getattr(sys, name))
 
     @property
     def stream(self):
-        return sys.stdout
+        return getattr(sys, self._sys_name)
 
     @stream.setter
-    def stream(self, value):  # set by StreamHandler.__init__; always sys.stdout instead
+    def stream(self, value):  # set by StreamHandler.__init__; always sys.<name> instead
         pass
 
 
@@ -71,15 +57,15 @@ def configure_cli(quiet: bool) -> None:
     way (logging's own last-resort output stops as soon as the logger has any handler).
     Idempotent."""
     logger = logging.getLogger(LOGGER_NAME)
-    for handler in [h for h in logger.handlers if isinstance(h, _StdoutHandler | _StderrHandler)]:
+    for handler in [h for h in logger.handlers if isinstance(h, _SysStreamHandler)]:
         logger.removeHandler(handler)
     logger.setLevel(logging.WARNING if quiet else logging.INFO)
-    warning = _StderrHandler()
+    warning = _SysStreamHandler("stderr")
     warning.setLevel(logging.WARNING)
     warning.setFormatter(_LevelFormatter())
     logger.addHandler(warning)
     if not quiet:
-        handler = _StdoutHandler()
+        handler = _SysStreamHandler("stdout")
         handler.setFormatter(logging.Formatter("%(message)s"))
         handler.addFilter(lambda record: record.levelno < logging.WARNING)
         logger.addHandler(handler)

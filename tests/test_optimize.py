@@ -294,3 +294,19 @@ def test_the_map_with_the_mass_fixed_fits_at_the_noise():
     y = np.asarray(problem.solve(params, x0, problem.n_train).ys)[:, :2]
     rms = np.sqrt(np.mean((y - np.asarray(problem.y)) ** 2, axis=0))
     assert rms[0] < MAP_NOISE_RATIO * noise, rms
+
+
+def test_substeps_cap_is_a_logged_warning(synthetic_problem, monkeypatch, caplog):
+    """A MAP stiffer than MAX_SUBSTEPS allows is reported through the package's logging (one
+    ``warning:`` line in the CLI), not as a Python warning with a source line."""
+    import logging
+
+    from heli_uq.inference import start as start_module
+
+    monkeypatch.setattr(start_module, "required_substeps", lambda problem, params: 99)
+    monkeypatch.setattr(start_module, "MAX_SUBSTEPS", synthetic_problem.substeps)
+    with caplog.at_level(logging.WARNING, logger="heli_uq"):
+        start = start_module.prepare_start(synthetic_problem, n_starts=1, seed=0)
+    assert start.problem.substeps == synthetic_problem.substeps
+    lines = [r.getMessage() for r in caplog.records if r.name == "heli_uq.inference.start"]
+    assert len(lines) == 1 and "needs 99 solver substeps" in lines[0], lines

@@ -22,8 +22,8 @@ a local optimum, not necessarily the global one.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
-import warnings
 
 import jax
 import jax.numpy as jnp
@@ -296,10 +296,10 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
         phys = {k: float(v) for k, v in problem.coords.to_physical(_full_z(problem, sites)).items()}
         need = required_substeps(problem, phys)
         if need > MAX_SUBSTEPS:
-            warnings.warn(f"the MAP needs {need} solver substeps per sample for its stiffest "
-                          f"term; using {MAX_SUBSTEPS} (MAX_SUBSTEPS): the simulation may be "
-                          "inaccurate; consider smoother friction (a larger omega_s)",
-                          RuntimeWarning, stacklevel=2)  # fmt: skip
+            logging.getLogger(__name__).warning(
+                f"the MAP needs {need} solver substeps per sample for its stiffest term; using "
+                f"{MAX_SUBSTEPS} (MAX_SUBSTEPS): the simulation may be inaccurate; consider "
+                "smoother friction (a larger omega_s)")
             need = MAX_SUBSTEPS
         if need <= problem.substeps:
             break

@@ -11,9 +11,9 @@ the draw of highest density, wall time), ``bands.png`` (posterior-predictive ban
 from __future__ import annotations
 
 import json
+import logging
 import pathlib
 import time
-import warnings
 
 import numpy as np
 
@@ -180,11 +180,10 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     summary["parameters"] = parameter_summary(idata, problem.model)
     summary["solver_error_rad"] = _solver_check(problem, idata)
     if summary["solver_error_rad"] is not None and not summary["solver_error_rad"] <= SOLVER_TOL:
-        warnings.warn(f"the fixed-step solver ({problem.substeps} substeps) is "
-                      f"{summary['solver_error_rad']:.2g} rad from the adaptive reference at the "
-                      f"draw of highest density (tolerance {SOLVER_TOL:g}); rerun with more "
-                      "substeps",
-                      RuntimeWarning, stacklevel=2)  # fmt: skip
+        logging.getLogger(__name__).warning(
+            f"the fixed-step solver ({problem.substeps} substeps) is "
+            f"{summary['solver_error_rad']:.2g} rad from the adaptive reference at the draw of "
+            f"highest density (tolerance {SOLVER_TOL:g}); rerun with more substeps")
     if last_layer is not None:
         summary["last_layer"] = last_layer
     of_u = [t.axis for t in network_terms(problem.model) if t.inputs == "u"]

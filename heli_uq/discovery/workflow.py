@@ -95,7 +95,7 @@ class Budget:
     (else its Laplace approximation is *before*); ``newton_steps``: of each MAP polish;
     ``max_tree_depth``: of the NUTS refit (a stiff friction model can otherwise spend 2^8
     leapfrog steps per draw); ``adapt_mass_matrix``: the refit adapts a dense mass matrix in
-    whitened coordinates (``False``, quick: the Laplace covariance stays the metric).
+    whitened coordinates (``False``, quick: the level-scaled Laplace covariance stays the metric).
     """
 
     n_starts: int

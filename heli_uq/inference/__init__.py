@@ -12,6 +12,7 @@ from heli_uq.inference.emcee_sampler import run_emcee as run_emcee
 from heli_uq.inference.laplace_sampler import importance_resample as importance_resample
 from heli_uq.inference.laplace_sampler import run_laplace as run_laplace
 from heli_uq.inference.least_squares import least_squares_fit as least_squares_fit
+from heli_uq.inference.level_scale import level_scaled_covariance as level_scaled_covariance
 from heli_uq.inference.levenberg import masked_least_squares as masked_least_squares
 from heli_uq.inference.manifest import run_manifest as run_manifest
 from heli_uq.inference.map import MapResult as MapResult
@@ -31,4 +32,5 @@ SAMPLERS = ("nuts", "emcee", "laplace")
 __all__ = ["Checkpoint", "LogDensity", "constrain_draws", "log_density_setup", "run_emcee",
            "masked_least_squares", "MapResult", "find_map", "laplace", "TARGET_ACCEPT",
            "SamplerRun", "run_nuts", "run_laplace", "importance_resample", "Start", "least_squares_fit",
-           "prepare_start", "start_parameters", "SAMPLERS", "run_manifest", "train", "Training"]  # fmt: skip
+           "prepare_start", "start_parameters", "SAMPLERS", "run_manifest", "train", "Training",
+           "level_scaled_covariance"]  # fmt: skip

@@ -1,5 +1,8 @@
 """NUTS (numpyro) in coordinates whitened by the Laplace approximation, saved in chunks.
 
+The metric is the Laplace covariance with each eigen-axis rescaled to the posterior's
+width (:mod:`heli_uq.inference.level_scale`).
+
 The sampler starts from the multi-start MAP (:func:`heli_uq.inference.prepare_start`),
 so chains do not start in the regime where the model flies off.  Draws are produced
 ``chunk`` at a time after warm-up and written with the sampler state
@@ -32,6 +35,7 @@ from heli_uq.errors import ParameterError
 from heli_uq.inference.checkpoint import Checkpoint
 from heli_uq.inference.density import constrain_draws, coordinate_names, log_density_setup
 from heli_uq.inference.interrupt import Interrupted, Progress, deferred_interrupt
+from heli_uq.inference.level_scale import level_scaled_covariance
 from heli_uq.inference.manifest import run_manifest
 from heli_uq.inference.start import Start, initial_draws, prepare_start
 from heli_uq.inference.whiten import SamplerMap, choose_walls
@@ -188,7 +192,7 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         Target mean acceptance probability of step-size adaptation.
     adapt_mass_matrix : bool
         Adapt the dense mass matrix in whitened coordinates during warm-up (``False``:
-        keep the identity, i.e. the Laplace covariance).
+        keep the identity, i.e. the level-scaled Laplace covariance).
     start : Start, optional
         The MAP start; computed if not given.
 
@@ -219,6 +223,9 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     if info is None:
         start = prepare_start(problem, seed=seed) if start is None else start
         info = _start_info(start)
+        info["covariance"], factors = level_scaled_covariance(start.density.potential_jit, info["x_map"],
+                                                              start.map_value, info["covariance"])
+        info["metric_factors"] = [float(f) for f in factors]
         logs = [i for i, name in enumerate(coordinate_names(start.density)) if name.startswith("z[log_")]
         walls = choose_walls(start.density.potential_jit, info["x_map"], info["covariance"], logs)
         info["walls"] = [list(w) for w in walls]

@@ -7,6 +7,7 @@ vocabulary on 131 s records is ``studies/discovery_confusion.py``.
 
 import dataclasses
 import json
+import re
 
 import pytest
 
@@ -62,6 +63,11 @@ def test_discover_names_a_hidden_yaw_offset_and_closes_the_gap(tmp_path):
     fit_pairs = {tuple(q) for q in rec.u[fit]}
     new_pairs = {tuple(q) for q in rec.u[test]} - fit_pairs
     report = (tmp_path / "report.md").read_text()
+    # where the time went: the search and the refit add up to the whole run
+    split = re.search(r"Budget `.*`, ([\d.]+) min: ([\d.]+) min to fit and score the candidates, "
+                      r"([\d.]+) min for the NUTS", report)
+    total, search, refit = map(float, split.groups())
+    assert abs(search + refit - total) <= 0.11  # each rounded to 0.1 min
     if new_pairs:
         assert f"**{len(new_pairs)} voltage pair(s) the fitting window never holds**" in report
     else:

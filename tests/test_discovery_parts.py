@@ -2,6 +2,7 @@
 the implied torque, effect features, the pysindy ranking and the task executor."""
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -401,6 +402,37 @@ def test_a_much_better_candidate_restarts_the_current_model_from_its_values():
     # no candidate clearly better, or none fitted: keep the current MAP
     assert _nested_guess({"a": close}, current, current["map"]) is None
     assert _nested_guess({"c": failed}, current, current["map"]) is None
+
+
+def test_after_a_restart_only_the_candidates_worse_than_the_new_current_fit_are_refitted():
+    """A candidate nests the current model: one whose MAP is worse than the refitted current
+    model's sits in a poorer basin and is refitted; one at least as good is kept."""
+    from heli_uq.discovery.workflow import _beyond
+
+    again = {"map_value": 900.0}
+    results = {"winner": {"map_value": 100.0}, "equal": {"map_value": 900.0},
+               "trapped": {"map_value": 900.5}, "failed": {"error": "ParameterError: diverged"}}
+    assert list(_beyond(results, again)) == ["winner", "equal"]
+
+
+def test_the_store_keeps_each_task_of_a_model_for_a_rerun(tmp_path):
+    """A model fitted twice (before and after a restart) is reused for both tasks; the
+    latest fit is its ``result`` (what ``heli-uq design`` reads)."""
+    from heli_uq.discovery.rounds import CandidateStore
+
+    store = CandidateStore(tmp_path)
+    store.save("yaw:x", "sig-1", {"map_value": 2.0})
+    store.save("yaw:x", "sig-2", {"map_value": 1.0})
+    assert store.load("yaw:x", "sig-1") == {"map_value": 2.0}
+    assert store.load("yaw:x", "sig-2") == {"map_value": 1.0}
+    assert store.load("yaw:x", "sig-3") is None and store.load("yaw:y", "sig-1") is None
+    stored = json.loads(store.path("yaw:x").read_text())
+    assert stored["signature"] == "sig-2" and stored["result"] == {"map_value": 1.0}
+    store.save("yaw:x", "sig-1", {"map_value": 3.0})  # refitted: the newer fit replaces it
+    assert store.load("yaw:x", "sig-1") == {"map_value": 3.0}
+    assert store.load("yaw:x", "sig-2") == {"map_value": 1.0}
+    store.path("yaw:x").write_text("{not json")  # a damaged file is a missing fit, not a crash
+    assert store.load("yaw:x", "sig-1") is None
 
 
 def test_the_refit_of_a_split_run_starts_from_the_candidates_map_alone(monkeypatch):

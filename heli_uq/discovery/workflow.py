@@ -22,8 +22,10 @@ Steps (the module of each in parentheses):
    A candidate nests the current model, so when one fits the fitting window much
    better (:data:`RESTART_NATS`), the current model is refitted once from its values;
    if that finds a better basin (a stiff hidden effect can trap the base fit: a pitch
-   friction record left the base at pitch RMSE 1.5 rad), the round is rerun from it.
-   The fits are independent Dask tasks (:func:`heli_uq.executor.run_tasks`) and are saved
+   friction record left the base at pitch RMSE 1.5 rad), the candidates that fit worse
+   than the refitted current model are fitted again from it (the others already sit in a
+   basin at least as good).
+   The fits are independent Dask tasks (:mod:`~heli_uq.discovery.rounds`) and are saved
    as they finish, so a rerun with the same output directory reuses them.
 5. **Decide** (:mod:`~heli_uq.discovery.decide`).  The best model beats the current one
    if its score difference exceeds both :data:`~heli_uq.discovery.score.MARGIN_SE` standard errors and
@@ -43,32 +45,23 @@ Steps (the module of each in parentheses):
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import itertools
-import json
 import pathlib
 import time
 
 import numpy as np
 
 from heli_uq.data import Experiment
-from heli_uq.discovery.candidates import (
-    FitTask,
-    fit_and_score,
-    fitted_predictive,
-    off_start,
-    score_fitted,
-    warm_starts,
-)
+from heli_uq.discovery.candidates import FitTask, fitted_predictive, off_start, score_fitted, warm_starts
 from heli_uq.discovery.decide import choose, pair_members, rank
 from heli_uq.discovery.implied import base_features, effect_features, implied_torque
 from heli_uq.discovery.locate import locate
 from heli_uq.discovery.report import write_outputs
+from heli_uq.discovery.rounds import CandidateStore, run_round
 from heli_uq.discovery.score import gap_text
 from heli_uq.discovery.sindy import rank_effects
 from heli_uq.errors import ParameterError
-from heli_uq.executor import TaskFailed, check_scheduler, run_tasks
-from heli_uq.io import atomic_write_text
+from heli_uq.executor import check_scheduler
 from heli_uq.log import progress_log
 from heli_uq.model import AXES, EFFECTS, RIG_FIT, build_model
 
@@ -165,72 +158,18 @@ def _nested_guess(results: dict, current_res: dict, current_map: dict) -> dict |
     return {k: v for k, v in best["map"].items() if k in current_map}
 
 
+def _beyond(results: dict, current_res: dict) -> dict:
+    """The candidate fits whose MAP is at least as good as the current model's (after a
+    restart found it a better basin): they are kept.  A candidate nests the current model,
+    so one that fits worse than it sits in a poorer basin and is refitted from it; one
+    that fits as well or better is not helped by that start."""
+    return {k: r for k, r in results.items()
+            if "error" not in r and r["map_value"] <= current_res["map_value"]}  # fmt: skip
+
+
 def _key(effects) -> str:
     return "+".join(effects) if effects else "base"
 
-
-#: Version of a stored candidate fit; a stored fit of another version is fitted again
-#: (2: the Laplace draws are importance-resampled before scoring, or the MAP's plug-in
-#: predictive when Pareto k rejects them; 3: a term's start grid adds a MAP start, e.g.
-#: a dead band between the record's voltage levels).
-FIT_VERSION = 3
-
-
-def _signature(record: Experiment, task: FitTask) -> str:
-    h = hashlib.sha256()
-    for a in (record.t, record.u, record.y):
-        h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
-    h.update(json.dumps([task.fit_window, task.score_window, task.effects, task.seed,
-                         task.n_starts, task.draws, task.newton_steps, task.guesses, task.off,
-                         task.floor, FIT_VERSION],
-                        default=float).encode())  # fmt: skip
-    return h.hexdigest()
-
-
-class _Store:
-    """Finished candidate fits under ``out/candidates/`` (reused by a rerun)."""
-
-    def __init__(self, out: pathlib.Path):
-        self.dir = out / "candidates"
-        self.dir.mkdir(parents=True, exist_ok=True)
-
-    def path(self, key: str) -> pathlib.Path:
-        return self.dir / (key.replace(":", "-") + ".json")
-
-    def load(self, key: str, signature: str):
-        try:
-            stored = json.loads(self.path(key).read_text())
-        except (OSError, ValueError):
-            return None
-        return stored["result"] if stored.get("signature") == signature else None
-
-    def save(self, key: str, signature: str, result: dict) -> None:
-        atomic_write_text(self.path(key), json.dumps({"signature": signature, "result": result}))
-
-
-def _run_round(tasks: dict, store: _Store, record, scheduler, log) -> dict:
-    """Fit every task not already stored; ``{key: result}`` (a failed one: ``{"error"}``)."""
-    sigs = {k: _signature(record, t) for k, t in tasks.items()}
-    done = {k: r for k in tasks if (r := store.load(k, sigs[k])) is not None}
-    if done:
-        log(f"reusing {len(done)} stored fit(s): {', '.join(done)}")
-    todo = {k: t for k, t in tasks.items() if k not in done}
-    count = iter(range(1, len(todo) + 1))
-
-    def finished(key, result):
-        step = f"  [{next(count)}/{len(todo)}] {key}:"
-        if isinstance(result, TaskFailed):
-            log(f"{step} failed ({result['error']})")
-            return
-        store.save(key, sigs[key], result)
-        log(f"{step} fitted in {result['seconds']:.0f} s, held-out "
-            f"{gap_text(result['score'], coverage=False)}")  # fmt: skip
-
-    if todo:
-        log(f"fitting {len(todo)} model(s) ({'serial' if scheduler == 'serial' else 'Dask'}): "
-            f"{', '.join(todo)}")  # fmt: skip
-    fresh = run_tasks(fit_and_score, todo, scheduler=scheduler, on_result=finished)
-    return {k: dict(done.get(k) or fresh[k]) for k in tasks}
 
 
 def discover(record: Experiment, out_dir, *, window=None, train=None, test=None, base_effects=(),
@@ -283,7 +222,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     fit_w, score_w, (refit_train, refit_test) = _windows(record, window, train, test)
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    store = _Store(out)
+    store = CandidateStore(out)
 
     def task(effects, guesses=(), cold=cost.cold_starts, nests=None):
         """``nests``: the current fit ``(result, map)`` the candidate nests (its fallback)."""
@@ -324,14 +263,16 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     # 4-5. name: greedy steps over singles and pairs
     current, current_res, current_map = list(base_effects), base, base_fit.params
     steps, all_rows = [], []
-    restarted = False
+    restarted, kept = False, {}
     while len(current) - len(base_effects) < max_effects:
         singles = {}
         for e in _candidate_effects(current, vocabulary):
-            singles[_key(current + [e])] = task(current + [e], warm_starts(current_map, current + [e],
-                                                                        implied.get(e, {})),
-                                                nests=(current_res, current_map))  # fmt: skip
-        results = _run_round(singles, store, record, scheduler, say)
+            if (key := _key(current + [e])) not in kept:
+                starts = warm_starts(current_map, current + [e], implied.get(e, {}))
+                singles[key] = task(current + [e], starts, nests=(current_res, current_map))
+        fresh = run_round(singles, store, record, scheduler, say)
+        results = {k: kept[k] if k in kept else fresh[k] for k in [*kept, *fresh]}
+        kept = {}
         if not restarted:
             restarted = True
             guess = _nested_guess(results, current_res, current_map)
@@ -345,9 +286,11 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
                     say(f"  the refit failed ({type(exc).__name__}: {exc}); keeping the current MAP")
                     again = {"map_value": np.inf}
                 if again["map_value"] < current_res["map_value"] - RESTART_NATS:
+                    kept = _beyond(results, again)
                     say(f"the current model's MAP improved by "
                         f"{current_res['map_value'] - again['map_value']:.0f} nats; refitting "
-                        "the candidates from it")  # fmt: skip
+                        f"from it the {len(results) - len(kept)} candidate(s) that fit worse than "
+                        f"it (keeping {', '.join(kept) or 'none'})")  # fmt: skip
                     current_res, current_map = again, again["map"]
                     if not steps:
                         base_fit, base = again_fit, again
@@ -365,7 +308,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
                                                  if k not in results[a]["map"]}}  # fmt: skip
                 pairs[_key(effects)] = task(effects, (guess,) + warm_starts(current_map, effects, {}),
                                             nests=(current_res, current_map))  # fmt: skip
-            pair_results = _run_round(pairs, store, record, scheduler, say)
+            pair_results = run_round(pairs, store, record, scheduler, say)
             results.update(pair_results)
             rows = rank(results, current_res, n_scored)
         for r in rows:

@@ -290,6 +290,17 @@ def test_oversized_requests_are_refused_up_front(tmp_path, capsys, argv, needle)
     assert needle in err and "would need about" in err and "iB of memory" in err, err
 
 
+@pytest.mark.parametrize("value", ["0", "-5", "nan"])
+def test_a_non_positive_time_limit_is_one_line(tmp_path, capsys, value):
+    from heli_uq.cli import main
+
+    rec = tmp_path / "rec.csv"
+    synthetic_experiment(duration=0.5, seed=1).to_csv(rec)
+    assert main(["sample", "--data", str(rec), "--time-limit", value, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--time-limit: expected minutes > 0" in err and "Traceback" not in err
+
+
 # --------------------------------------------------------------------------- bounded outputs
 
 #: The default ``heli-uq run`` (issue 13): posterior.nc at most this size [bytes].
@@ -427,6 +438,36 @@ def test_interrupted_and_resumed_nuts_gives_bit_identical_draws(synthetic_proble
         np.testing.assert_array_equal(full.samples[k], resumed.samples[k], err_msg=k)
     for k in full.stats:
         np.testing.assert_array_equal(full.stats[k], resumed.stats[k], err_msg=k)
+
+
+@pytest.mark.slow
+def test_a_time_limited_nuts_run_keeps_its_draws_and_a_resume_completes_it(synthetic_problem,
+                                                                           synthetic_start, tmp_path,
+                                                                           monkeypatch):  # fmt: skip
+    """A run past its time limit stops after the warm-up once every chain has the fewest
+    draws it keeps; they are the uninterrupted run's first draws, the run records how many
+    were asked for (a health note, not a flag), and a resume without the limit completes
+    the run bit for bit."""
+    from heli_uq.inference import nuts
+    from heli_uq.output.health import check_health
+
+    kw = dict(chains=2, warmup=30, draws=40, chunk=20, seed=3, progress=False, start=synthetic_start)
+    full = nuts.run_nuts(synthetic_problem, tmp_path / "full", **kw)
+    monkeypatch.setattr(nuts, "BLOCK_SECONDS", 1e-9)  # one iteration per block after the first two
+    monkeypatch.setattr(nuts, "MIN_DRAWS_AT_LIMIT", 7)
+    cut = tmp_path / "cut"
+    limited = nuts.run_nuts(synthetic_problem, cut, time_limit=0.0, **kw)
+    assert limited.info["draws"] == 7 and limited.info["draws_requested"] == 40
+    for k in full.samples:
+        np.testing.assert_array_equal(full.samples[k][:, :7], limited.samples[k], err_msg=k)
+    health = check_health({"sampler": "nuts", "chains": 2, "draws": 7, "draws_requested": 40})
+    assert health["ok"] and any("after 7 of 40 draws" in n for n in health["notes"]), health
+    resumed = nuts.run_nuts(synthetic_problem, cut, resume=True, **kw)
+    assert "draws_requested" not in resumed.info
+    for k in full.samples:
+        np.testing.assert_array_equal(full.samples[k], resumed.samples[k], err_msg=k)
+    with pytest.raises(ParameterError, match="time_limit"):
+        nuts.run_nuts(synthetic_problem, tmp_path / "bad", time_limit=-1.0, **kw)
 
 
 #: An interrupt is honoured within this many seconds (the issue's requirement).

@@ -30,6 +30,8 @@ def cmd_sample(args) -> int:
     from heli_uq.output.posterior_study import sample_posterior
 
     check_positive(args, ("chains", "warmup", "draws", "max_tree_depth"))
+    if args.time_limit is not None and not args.time_limit > 0:
+        raise ParameterError(f"--time-limit: expected minutes > 0, found {args.time_limit:g}")
     target_accept = TARGET_ACCEPT if args.target_accept is None else args.target_accept
     if args.sampler == "nuts":
         # One XLA host device per chain, so numpyro runs the chains in parallel; only
@@ -53,6 +55,7 @@ def cmd_sample(args) -> int:
         walkers=args.walkers, adapt_mass_matrix=args.adapt_mass_matrix == "on",
         target_accept=target_accept, network_posterior=args.nn_posterior or "full",
         max_tree_depth=args.max_tree_depth, guesses=guesses,
+        time_limit=None if args.time_limit is None else 60.0 * args.time_limit,
     )  # fmt: skip
     keys = ("rhat_max", "ess_bulk_min", "ess_tail_min", "divergences", "rmse", "coverage90",
             "rmse_test", "coverage90_test", "solver_error_rad", "wall_s", "rhat_max_network_torque",
@@ -152,6 +155,9 @@ def add_parser(subparsers):
                    help="NUTS: at most 2^D - 1 leapfrog steps per draw (default: 8); a stiff"
                         " model (friction) can spend the whole tree on every draw, a lower D"
                         " bounds the cost per draw (summary.json reports the saturation)")
+    p.add_argument("--time-limit", type=float, default=None, metavar="MIN",
+                   help="NUTS: stop sampling after MIN minutes with the draws made (after the"
+                        " warm-up, at least 100 per chain); --resume later continues to --draws")
     p.add_argument("--walkers", type=int, default=None,
                    help="emcee walkers per ensemble (default: 2 * dim + 2)")
     p.add_argument("--error", choices=["iid", "ar1"], default="ar1",

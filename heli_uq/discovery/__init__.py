@@ -6,7 +6,8 @@ Layer 8 (imports everything below it; only the CLI imports it).  One module per 
 effect's feature), ``sindy`` (pysindy ranking), ``candidates`` (one model fitted and
 scored, the Dask task), ``rounds`` (a round of candidate fits, stored and reused),
 ``score`` (blocked held-out scores and gap metrics), ``decide`` (ranking, ties and the
-choice), ``workflow`` (the steps), ``report`` (refit and outputs).
+choice), ``workflow`` (the steps), ``report`` (refit and outputs), ``candidates_figure``
+(``candidates.png``).
 """
 
 from heli_uq.discovery.report import DISCOVERY_KEYS as DISCOVERY_KEYS

@@ -20,8 +20,9 @@ import numpy as np
 
 from heli_uq.data import unseen_inputs
 from heli_uq.discovery.candidates import FitTask, fitted_predictive
-from heli_uq.discovery.score import GAP_KEYS, MARGIN_PER_SAMPLE, gap_metrics, gap_text
-from heli_uq.figure import new_figure, save_figure
+from heli_uq.discovery.candidates_figure import candidates_figure
+from heli_uq.discovery.score import GAP_KEYS, gap_metrics, gap_text
+from heli_uq.figure import save_figure
 from heli_uq.io import atomic_write_text
 from heli_uq.model import build_model
 from heli_uq.output import parameter_summary, plot_bands, sample_posterior
@@ -31,6 +32,10 @@ __all__ = ["write_outputs", "gap_warnings", "DISCOVERY_KEYS"]
 #: A first-step candidate whose held-out V is below this fraction of the base model's but
 #: whose held-out score is negative is named in the report (closer, yet overconfident).
 CLOSER_V_FRACTION = 0.8
+#: Seconds a budget with a time target (:attr:`~heli_uq.discovery.workflow.Budget.minutes`)
+#: keeps for the posterior-predictive simulations, figures and files after its last NUTS
+#: run stops sampling.
+OUTPUT_SECONDS = 30.0
 #: The keys of ``discovery.json``, in order.
 DISCOVERY_KEYS = ("effect", "axis", "parameters", "gap_before", "gap_after", "candidates",
                   "decision", "added")  # fmt: skip
@@ -49,9 +54,10 @@ def _masks(n: int, windows: dict, split: bool) -> dict:
     return out
 
 
-def _posterior(record, model, train, test, out, cost, seed, guess):
+def _posterior(record, model, train, test, out, cost, seed, guess, time_limit=None):
     """NUTS posterior of ``model`` (MAP warm-started from ``guess``, the model's fit on the
-    fitting window): ``(idata, summary, y_sim, y_pred, y_obs, t)``.
+    fitting window): ``(idata, summary, y_sim, y_pred, y_obs, t)``.  ``time_limit`` [s]:
+    see :func:`heli_uq.output.sample_posterior`.
 
     With a split the posterior is conditioned on the fitting window itself, where ``guess``
     is already the multi-start MAP of the same model, so it is the only start (more
@@ -64,7 +70,7 @@ def _posterior(record, model, train, test, out, cost, seed, guess):
                                       draws=cost.samples, seed=seed, progress=False,
                                       max_tree_depth=cost.max_tree_depth, n_starts=starts,
                                       adapt_mass_matrix=cost.adapt_mass_matrix,
-                                      guesses=(guess,))  # fmt: skip
+                                      guesses=(guess,), time_limit=time_limit)  # fmt: skip
     pp = idata.posterior_predictive
     y_sim = np.asarray(pp["y_sim"]).reshape((-1,) + pp["y_sim"].shape[2:])
     y_pred = np.asarray(pp["y_pred"]).reshape((-1,) + pp["y_pred"].shape[2:])
@@ -99,6 +105,10 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
                   n_scored, say, t_start) -> dict:  # fmt: skip
     """Refit, compare and write every output (module docstring); returns ``discovery.json``."""
     search_seconds = time.perf_counter() - t_start
+
+    def time_left(share=1.0):
+        return _time_left(cost, t_start, share)
+
     train, test = refit
     split = test is not None
     base_model = build_model(base_effects)
@@ -106,7 +116,7 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
     if full:
         say("NUTS posterior of the base model (before); its times count from its own start")
         _, _, bs, bp, by, bt = _posterior(record, base_model, train, test, out / "before", cost, seed,
-                                          base_fit.params)  # fmt: skip
+                                          base_fit.params, time_left(0.5 if added else 1.0))  # fmt: skip
         problem_windows = _windows_from(bt, train, test)
     else:
         fitted = base_fit if split else fitted_predictive(
@@ -121,8 +131,8 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
     if added:
         say(f"NUTS posterior of the chosen model ({build_model(effects).label}); its times count "
             "from its own start")
-        idata, summary, as_, ap, ay, at = _posterior(record, build_model(effects), train, test,
-                                                     out / "refit", cost, seed, chosen_map)  # fmt: skip
+        idata, summary, as_, ap, ay, at = _posterior(record, build_model(effects), train, test, out / "refit",
+                                                     cost, seed, chosen_map, time_left())  # fmt: skip
         masks_after = _masks(len(at), _windows_from(at, train, test), split)
         gap_after = _gap(as_, ap, ay, masks_after)
         params = parameter_summary(idata, build_model(effects))
@@ -153,7 +163,7 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
                            health=flags,
                            title=f"After: {build_model(effects).label} (NUTS) - {title}"),
                 out / "bands_after.png")  # fmt: skip
-    save_figure(_candidates_figure(result["candidates"], n_scored), out / "candidates.png")
+    save_figure(candidates_figure(result["candidates"], n_scored), out / "candidates.png")
     label = budget if isinstance(budget, str) else repr(budget)
     whole = {"before": gap_metrics(bs, bp, by), "after": gap_metrics(as_, ap, ay)}
     seconds = (time.perf_counter() - t_start, search_seconds)
@@ -162,6 +172,15 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
                                                  record))  # fmt: skip
     say(f"done: {result['decision']}")
     return result
+
+
+def _time_left(cost, t_start: float, share: float = 1.0) -> float | None:
+    """``share`` of the seconds the budget's time target leaves a NUTS posterior of a run
+    started at ``t_start`` (``time.perf_counter``), less :data:`OUTPUT_SECONDS`; None
+    without a target."""
+    if cost.minutes is None:
+        return None
+    return share * max(0.0, 60.0 * cost.minutes - (time.perf_counter() - t_start) - OUTPUT_SECONDS)
 
 
 def _windows_from(t, train, test) -> dict:
@@ -221,47 +240,6 @@ def _decision(added, rows, steps, before, after) -> str:
     return (f"Added {names}: held-out score +{steps[0]['score']:.0f} ± {steps[0]['score_se']:.0f} nats "
             f"over the base at the first step{tie}; on the {w} window "
             f"{gap_text(before[w], after[w])}.{warn}")  # fmt: skip
-
-
-def _candidates_figure(cands: list[dict], n_scored: int):
-    """Held-out score per sample of each candidate against the current model, ± 2 SE;
-    scores far below zero are cut at the left edge (hatched, value written)."""
-    ok = [c for c in cands if c.get("score") is not None and np.isfinite(c["score"])]
-    fig = new_figure((10.0, 1.2 + 0.3 * max(len(ok), 1)))
-    ax = fig.add_subplot(1, 1, 1)
-    def label(c):
-        tags = [t for t, on in (("tied", c.get("tied")), ("chosen by the fit window", c.get("chosen_by")))
-                if on]  # fmt: skip
-        return f"step {c['step']}: {c['effect']} ({c['axis']})" + (f" [{', '.join(tags)}]" if tags else "")
-
-    labels = [label(c) for c in ok][::-1]
-    x = np.asarray([c["score"] for c in ok][::-1]) / n_scored
-    err = 2 * np.asarray([c["score_se"] for c in ok][::-1]) / n_scored
-    right = max(float(np.max(x + err, initial=0.0)), 5 * MARGIN_PER_SAMPLE)
-    left = -max(right, 1.0)
-    shown = np.clip(x, left, None)
-    y = np.arange(len(ok))
-    colors = ["C2" if c.get("passes") else "0.6" for c in ok][::-1]
-    bars = ax.barh(y, shown, color=colors)
-    ax.errorbar(np.clip(x, left, None), y, xerr=np.where(x > left, err, 0), fmt="none", ecolor="k",
-                capsize=2)  # fmt: skip
-    for bar, value, cut in zip(bars, x, x < left):
-        if cut:
-            bar.set_hatch("//")
-            ax.text(left, bar.get_y() + bar.get_height() / 2, f" {value:.3g}", va="center",
-                    fontsize="x-small")  # fmt: skip
-    ax.set_yticks(y, labels, fontsize="small")
-    ax.axvline(0, color="k", lw=0.8)
-    ax.axvline(MARGIN_PER_SAMPLE, color="C3", ls="--", lw=0.8,
-               label=f"margin {MARGIN_PER_SAMPLE} nats/sample")  # fmt: skip
-    ax.set_xlim(left * 1.05, right * 1.05)
-    ax.set_xlabel("held-out log predictive density minus the current model's, per sample [nats] "
-                  "(± 2 SE)")  # fmt: skip
-    ax.set_title("Candidate effects (green: passes the margin; hatched: cut at the left edge)", loc="left")
-    ax.legend(loc="lower right", fontsize="small")
-    ax.grid(True, axis="x", alpha=0.4)
-    fig.tight_layout()
-    return fig
 
 
 def _fmt_gap(g: dict) -> str:
@@ -388,5 +366,7 @@ def _report(result, where, ranking, steps, base, budget, fit_window, score_windo
         if health is not None and not health.get("ok", True):
             lines += ["", "**Warning: the NUTS refit failed its health checks** (`refit/summary.json`):", ""]
             lines += [f"- {w}" for w in health.get("warnings", [])]
+        if health is not None and health.get("notes"):
+            lines += ["", "Notes on the NUTS refit:", ""] + [f"- {n}" for n in health["notes"]]
     lines += ["", "Figures: `residuals.png`, `candidates.png`, `bands_before.png`, `bands_after.png`.", ""]
     return "\n".join(lines)

@@ -88,7 +88,12 @@ class Budget:
     (else its Laplace approximation is *before*); ``newton_steps``: of each MAP polish;
     ``max_tree_depth``: of the NUTS refit (a stiff friction model can otherwise spend 2^8
     leapfrog steps per draw); ``adapt_mass_matrix``: the refit adapts a dense mass matrix in
-    whitened coordinates (``False``, quick: the level-scaled Laplace covariance stays the metric).
+    whitened coordinates (``False``, quick: the level-scaled Laplace covariance stays the metric);
+    ``minutes``: the whole run's time target: a NUTS posterior still sampling when it would
+    be exceeded stops with the draws made (after its warm-up, at least
+    :data:`~heli_uq.inference.nuts.MIN_DRAWS_AT_LIMIT` per chain; the summary's health
+    notes say so), ``None``: every draw is made (quick: a stiff friction refit's few hundred
+    draws are its interval; fewer would widen the chance of missing the truth).
     """
 
     n_starts: int
@@ -102,12 +107,13 @@ class Budget:
     newton_steps: int = 4
     max_tree_depth: int = 8
     adapt_mass_matrix: bool = True
+    minutes: float | None = None
 
 
 BUDGETS = {"quick": Budget(n_starts=2, cold_starts=0, draws=64, pair_top=3, chains=2, warmup=150,
                            samples=350, max_tree_depth=6, adapt_mass_matrix=False),
            "full": Budget(n_starts=4, cold_starts=1, draws=200, pair_top=4, chains=4, warmup=1000,
-                          samples=1000, nuts_before=True, newton_steps=10)}
+                          samples=1000, nuts_before=True, newton_steps=10, minutes=60.0)}
 
 
 def _windows(record: Experiment, window, train, test):

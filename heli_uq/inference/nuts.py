@@ -42,7 +42,7 @@ from heli_uq.inference.whiten import SamplerMap, choose_walls
 from heli_uq.io import require_memory
 from heli_uq.probability.problem import Problem
 
-__all__ = ["SamplerRun", "run_nuts", "TARGET_ACCEPT", "check_draws_memory"]
+__all__ = ["SamplerRun", "run_nuts", "TARGET_ACCEPT", "check_draws_memory", "MIN_DRAWS_AT_LIMIT"]
 
 NUTS_EXTRA_FIELDS = ("diverging", "num_steps", "energy", "accept_prob", "potential_energy")
 #: Default target acceptance of the step-size adaptation.  On the full rig record
@@ -57,6 +57,9 @@ BLOCK_MAX = 50
 BLOCK_SECONDS = 2.0
 #: Iterations of the first block (it includes compiling, so it sets no pace).
 FIRST_BLOCK = 2
+#: Fewest draws per chain a run stopped by its ``time_limit`` keeps (all of them if fewer
+#: are asked for): below that its ESS and R-hat say little.
+MIN_DRAWS_AT_LIMIT = 100
 
 
 @dataclasses.dataclass
@@ -150,7 +153,7 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
              draws: int = 1000, seed: int = 0, chunk: int = 250, resume: bool = False,
              progress: bool = True, max_tree_depth: int = 8,
              target_accept: float = TARGET_ACCEPT, adapt_mass_matrix: bool = True,
-             start: Start | None = None) -> SamplerRun:  # fmt: skip
+             start: Start | None = None, time_limit: float | None = None) -> SamplerRun:  # fmt: skip
     """NUTS in coordinates whitened by the Laplace approximation at the MAP.
 
     NUTS moves in ``w`` with ``x = x_map + L w`` (``x``: numpyro's unconstrained vector,
@@ -195,6 +198,12 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         keep the identity, i.e. the level-scaled Laplace covariance).
     start : Start, optional
         The MAP start; computed if not given.
+    time_limit : float, optional
+        Wall seconds from the call after which sampling stops at the end of the current
+        block, once every chain has :data:`MIN_DRAWS_AT_LIMIT` draws (the warm-up is never
+        cut).  The draws made are kept and saved; ``info["draws_requested"]`` records the
+        number asked for, and a ``resume`` with the same settings continues to it.  Not
+        part of the run's settings: it changes how many draws there are, not their law.
 
     Raises
     ------
@@ -210,6 +219,8 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
             raise ParameterError(f"{name}: expected a positive integer, found {value!r}")
     if not 0.0 < target_accept < 1.0:
         raise ParameterError(f"target_accept: expected a number in (0, 1), found {target_accept!r}")
+    if time_limit is not None and not time_limit >= 0:
+        raise ParameterError(f"time_limit: expected seconds >= 0, found {time_limit!r}")
     check_draws_memory(problem, chains * draws, f"draws: {chains} chains x {draws} draws")
     t_start = time.perf_counter()
     checkpoint = Checkpoint(pathlib.Path(out_dir) / CHUNK_DIR)
@@ -303,6 +314,15 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
                     saved = f"{done} of {draws} draws per chain"
                 bar.close()
                 raise Interrupted(f"{saved} saved in {checkpoint.directory}")
+            kept = done + sum(part[0].shape[1] for part in pending)
+            if (time_limit is not None and it < total and it > warmup
+                    and kept >= min(draws, MIN_DRAWS_AT_LIMIT)
+                    and time.perf_counter() - t_start > time_limit):  # fmt: skip
+                if pending:
+                    records.append(_save_chunk(checkpoint, len(records), pending, state, smap))
+                    done, pending = done + records[-1]["x"].shape[1], []
+                info["draws_requested"], draws = draws, done
+                break
     bar.close(_progress_text(it, warmup, draws, chains, [], records, time.perf_counter() - t_loop))
     if flag.requested:  # in the last block: every draw is saved, stop before post-processing
         raise Interrupted(f"all {draws} draws per chain saved in {checkpoint.directory}")

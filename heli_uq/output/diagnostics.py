@@ -77,7 +77,8 @@ def convergence(idata) -> dict:
         out["rhat_max_network_torque"] = float(summ.loc[[i for i in summ.index
                                                         if i.split("[")[0] in torques], "r_hat"].max())
     for key in ("map_seconds", "warmup_seconds", "map_decrement", "map_decrement_max", "target_accept",
-                "substeps", "wall_coordinates", "wall_sides", "max_tree_depth", "metric_factors"):
+                "substeps", "wall_coordinates", "wall_sides", "max_tree_depth", "metric_factors",
+                "draws_requested"):
         if key in info:
             out[key] = info[key]
     stats = idata.sample_stats

@@ -15,7 +15,9 @@ with the measured value and the limit.  Checks, and the flag they raise:
   warnings (chains shorter than 50 autocorrelation times, low acceptance).
 * **Notes** (no flag): the same MAP check for NUTS and emcee, whose MAP only starts the
   chains and whitens them: their draws are judged by the checks above, so a MAP that
-  stopped short of the optimum (a network's capped polish) is reported, not failed.
+  stopped short of the optimum (a network's capped polish) is reported, not failed; a NUTS
+  run stopped by its time limit with fewer draws than asked for (the checks above judge
+  the draws it made).
 * **unphysical**: posterior-predictive draws whose simulation leaves the physical range
   (:mod:`heli_uq.simulation.physical`: |pitch| > 90 deg or non-finite); the fixed-step
   solver off the adaptive reference by more than the tolerance.
@@ -139,6 +141,10 @@ def check_health(summary: dict, *, solver_tol: float | None = None) -> dict:
     if _map_starts_only(summary):
         notes = [f"{w}; it only started {summary['sampler']}, whose draws are judged by the other checks"
                  for w in _map_warnings(summary)]  # fmt: skip
+    requested = summary.get("draws_requested")
+    if requested is not None and summary.get("draws", requested) < requested:
+        notes.append(f"stopped at its time limit after {summary['draws']} of {requested} draws per chain "
+                     "(the other checks judge the draws made; a resume continues to the rest)")  # fmt: skip
     return {"ok": not flags, "flags": flags, "warnings": sampler + physical, "notes": notes}
 
 

@@ -86,7 +86,7 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
                      draws=1000, seed=0, resume=False, progress=True, walkers=None,
                      ensembles=None, n_starts=4, adapt_mass_matrix=True,
                      target_accept=TARGET_ACCEPT, substeps=None, log=None,
-                     max_tree_depth=8, guesses=(), network_posterior="full"):  # fmt: skip
+                     max_tree_depth=8, guesses=(), network_posterior="full", time_limit=None):  # fmt: skip
     """Run the whole posterior study and write its files; returns ``(idata, summary)``.
 
     Parameters
@@ -105,6 +105,10 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     priors : PriorSet, optional
     adapt_mass_matrix, target_accept, max_tree_depth
         NUTS only, see :func:`heli_uq.inference.run_nuts`.
+    time_limit : float, optional
+        NUTS only: wall seconds from this call after which sampling stops with the draws
+        made (at least :data:`~heli_uq.inference.nuts.MIN_DRAWS_AT_LIMIT` per chain, after
+        the whole warm-up; :func:`heli_uq.inference.run_nuts`).
     substeps : int, optional
         RK4 substeps per sample (default: chosen from the model's stiffness).
     guesses : sequence of dict, optional
@@ -161,10 +165,12 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     stage(f"{sampler}: {chains} chains x ({warmup} + {draws})"
           + (" (resumed from the saved chunks)" if resume else ""))  # fmt: skip
     if sampler == "nuts":
+        left = None if time_limit is None else max(0.0, time_limit - (time.perf_counter() - t0))
         run = run_nuts(problem, out, chains=chains, warmup=warmup, draws=draws, seed=seed,
                        resume=resume, progress=progress, start=start,
                        adapt_mass_matrix=adapt_mass_matrix, target_accept=target_accept,
-                       max_tree_depth=max_tree_depth)  # fmt: skip
+                       max_tree_depth=max_tree_depth,
+                       time_limit=left)  # fmt: skip
     elif sampler == "laplace":
         if resume:
             raise ParameterError("--resume: the Laplace sampler saves nothing to resume; run it again")

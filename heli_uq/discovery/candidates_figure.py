@@ -1,0 +1,57 @@
+"""``candidates.png`` of a discovery run: each candidate's held-out score against the
+current model, per held-out sample, with its uncertainty and the decision margin."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from heli_uq.discovery.score import MARGIN_PER_SAMPLE
+from heli_uq.figure import new_figure
+
+__all__ = ["candidates_figure"]
+
+
+def candidates_figure(cands: list[dict], n_scored: int):
+    """Held-out score per sample of each candidate against the current model, ± 2 SE;
+    scores far below zero are cut at the left edge (hatched, value written).
+
+    ``cands``: the ``candidates`` rows of ``discovery.json`` (``score``, ``score_se`` [nats],
+    ``step``, ``effect``, ``axis``, ``passes``, ``tied``, ``chosen_by``); ``n_scored``: held-out
+    samples.  Returns the matplotlib figure.
+    """
+    ok = [c for c in cands if c.get("score") is not None and np.isfinite(c["score"])]
+    fig = new_figure((10.0, 1.2 + 0.3 * max(len(ok), 1)))
+    ax = fig.add_subplot(1, 1, 1)
+    def label(c):
+        tags = [t for t, on in (("tied", c.get("tied")), ("chosen by the fit window", c.get("chosen_by")))
+                if on]  # fmt: skip
+        return f"step {c['step']}: {c['effect']} ({c['axis']})" + (f" [{', '.join(tags)}]" if tags else "")
+
+    labels = [label(c) for c in ok][::-1]
+    x = np.asarray([c["score"] for c in ok][::-1]) / n_scored
+    err = 2 * np.asarray([c["score_se"] for c in ok][::-1]) / n_scored
+    right = max(float(np.max(x + err, initial=0.0)), 5 * MARGIN_PER_SAMPLE)
+    left = -max(right, 1.0)
+    shown = np.clip(x, left, None)
+    y = np.arange(len(ok))
+    colors = ["C2" if c.get("passes") else "0.6" for c in ok][::-1]
+    bars = ax.barh(y, shown, color=colors)
+    ax.errorbar(np.clip(x, left, None), y, xerr=np.where(x > left, err, 0), fmt="none", ecolor="k",
+                capsize=2)  # fmt: skip
+    for bar, value, cut in zip(bars, x, x < left):
+        if cut:
+            bar.set_hatch("//")
+            ax.text(left, bar.get_y() + bar.get_height() / 2, f" {value:.3g}", va="center",
+                    fontsize="x-small")  # fmt: skip
+    ax.set_yticks(y, labels, fontsize="small")
+    ax.axvline(0, color="k", lw=0.8)
+    ax.axvline(MARGIN_PER_SAMPLE, color="C3", ls="--", lw=0.8,
+               label=f"margin {MARGIN_PER_SAMPLE} nats/sample")  # fmt: skip
+    ax.set_xlim(left * 1.05, right * 1.05)
+    ax.set_xlabel("held-out log predictive density minus the current model's, per sample [nats] "
+                  "(± 2 SE)")  # fmt: skip
+    ax.set_title("Candidate effects (green: passes the margin; hatched: cut at the left edge)", loc="left")
+    ax.legend(loc="lower right", fontsize="small")
+    ax.grid(True, axis="x", alpha=0.4)
+    fig.tight_layout()
+    return fig

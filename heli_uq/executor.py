@@ -20,13 +20,17 @@ an address (``tcp://host:8786``)
     :class:`~heli_uq.errors.ParameterError`.
 
 A task whose worker process dies (Dask gives up on it after its retries) becomes a
-:class:`TaskFailed` like a task that raised; the others go on.
+:class:`TaskFailed` like a task that raised; the others go on.  The workers of a
+``LocalCluster`` that :func:`run_tasks` starts drop the one record Dask logs with a
+traceback when a heartbeat races the cluster's close (:data:`HEARTBEAT_RACE`): there the
+scheduler goes away only because :func:`run_tasks` closes it.
 
 Layer 0: imports only :mod:`heli_uq.errors` (layer 0) and, when called, JAX and Dask.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import pathlib
 import traceback
@@ -39,6 +43,24 @@ __all__ = ["run_tasks", "check_scheduler", "TaskFailed", "CACHE_ENV", "default_w
 CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
 #: How long :func:`run_tasks` tries to reach a scheduler given by its address.
 CONNECT_TIMEOUT = "10s"
+#: Start of the message (logger ``distributed.worker``, with a traceback) of a worker
+#: whose heartbeat meets a scheduler that is closing.
+HEARTBEAT_RACE = "Failed to communicate with scheduler during heartbeat"
+
+
+class ClosingRaceFilter(logging.Filter):
+    """Drops the :data:`HEARTBEAT_RACE` record (installed in the workers of a cluster that
+    :func:`run_tasks` owns, whose scheduler closes only at the end of the run)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith(HEARTBEAT_RACE)
+
+
+def _quiet_closing_race() -> None:
+    """Install :class:`ClosingRaceFilter` once on this process's ``distributed.worker`` logger."""
+    logger = logging.getLogger("distributed.worker")
+    if not any(isinstance(f, ClosingRaceFilter) for f in logger.filters):
+        logger.addFilter(ClosingRaceFilter())
 
 
 class TaskFailed(dict):
@@ -161,6 +183,7 @@ def run_tasks(fn: Callable, tasks: Mapping, *, scheduler: str | None = "local", 
             cluster = LocalCluster(n_workers=workers or default_workers(len(keys)), threads_per_worker=1,
                                    processes=True, dashboard_address=":0")  # fmt: skip
             client = Client(cluster)
+            client.run(_quiet_closing_race)
         else:
             cluster, client = None, _connect(scheduler)
         try:

@@ -343,6 +343,24 @@ def test_run_tasks_reports_each_failure_and_finishes_the_rest(scheduler):
     assert sorted(seen) == ["a", "b", "c"]
 
 
+def _closing_race_filtered(_):
+    import logging
+
+    from heli_uq.executor import HEARTBEAT_RACE
+
+    logger = logging.getLogger("distributed.worker")
+    race = logger.makeRecord(logger.name, logging.ERROR, __file__, 0, HEARTBEAT_RACE + ".", (), None)
+    other = logger.makeRecord(logger.name, logging.ERROR, __file__, 0, "Worker stream died", (), None)
+    return (not logger.filter(race), bool(logger.filter(other)))
+
+
+def test_the_workers_of_a_local_cluster_drop_only_the_heartbeat_race_at_close():
+    """A worker whose heartbeat meets the closing scheduler logs a traceback at ERROR;
+    run_tasks' own workers drop that record and keep every other one."""
+    out = run_tasks(_closing_race_filtered, {"a": 0, "b": 0}, scheduler="local", workers=2)
+    assert out == {"a": (True, True), "b": (True, True)}, out
+
+
 def test_an_unreachable_scheduler_is_one_clear_error_not_a_hang():
     """Nothing listens on a closed loopback port: the executor says so in one line, within
     its connect timeout, instead of waiting for a scheduler that never answers."""

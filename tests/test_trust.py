@@ -290,15 +290,20 @@ def test_oversized_requests_are_refused_up_front(tmp_path, capsys, argv, needle)
     assert needle in err and "would need about" in err and "iB of memory" in err, err
 
 
-@pytest.mark.parametrize("value", ["0", "-5", "nan"])
-def test_a_non_positive_time_limit_is_one_line(tmp_path, capsys, value):
+@pytest.mark.parametrize("extra, needle", [
+    (["--time-limit", "0"], "--time-limit: expected minutes > 0"),
+    (["--time-limit", "-5"], "--time-limit: expected minutes > 0"),
+    (["--time-limit", "nan"], "--time-limit: expected minutes > 0"),
+    (["--time-limit", "5", "--sampler", "emcee"], "--time-limit: NUTS only"),
+])  # fmt: skip
+def test_a_bad_time_limit_is_one_line(tmp_path, capsys, extra, needle):
     from heli_uq.cli import main
 
     rec = tmp_path / "rec.csv"
     synthetic_experiment(duration=0.5, seed=1).to_csv(rec)
-    assert main(["sample", "--data", str(rec), "--time-limit", value, "--out", str(tmp_path / "o")]) == 2
+    assert main(["sample", "--data", str(rec), *extra, "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "--time-limit: expected minutes > 0" in err and "Traceback" not in err
+    assert err.count("\n") == 1 and needle in err and "Traceback" not in err, err
 
 
 # --------------------------------------------------------------------------- bounded outputs

@@ -32,6 +32,8 @@ def cmd_sample(args) -> int:
     check_positive(args, ("chains", "warmup", "draws", "max_tree_depth"))
     if args.time_limit is not None and not args.time_limit > 0:
         raise ParameterError(f"--time-limit: expected minutes > 0, found {args.time_limit:g}")
+    if args.time_limit is not None and args.sampler != "nuts":
+        raise ParameterError(f"--time-limit: NUTS only, found --sampler {args.sampler}")
     target_accept = TARGET_ACCEPT if args.target_accept is None else args.target_accept
     if args.sampler == "nuts":
         # One XLA host device per chain, so numpyro runs the chains in parallel; only

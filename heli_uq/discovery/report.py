@@ -105,18 +105,15 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
                   n_scored, say, t_start) -> dict:  # fmt: skip
     """Refit, compare and write every output (module docstring); returns ``discovery.json``."""
     search_seconds = time.perf_counter() - t_start
-
-    def time_left(share=1.0):
-        return _time_left(cost, t_start, share)
-
     train, test = refit
     split = test is not None
     base_model = build_model(base_effects)
     # before
     if full:
         say("NUTS posterior of the base model (before); its times count from its own start")
+        share = 0.5 if added else 1.0  # of the time target left: the refit needs the rest
         _, _, bs, bp, by, bt = _posterior(record, base_model, train, test, out / "before", cost, seed,
-                                          base_fit.params, time_left(0.5 if added else 1.0))  # fmt: skip
+                                          base_fit.params, _time_left(cost, t_start, share))  # fmt: skip
         problem_windows = _windows_from(bt, train, test)
     else:
         fitted = base_fit if split else fitted_predictive(
@@ -131,8 +128,9 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
     if added:
         say(f"NUTS posterior of the chosen model ({build_model(effects).label}); its times count "
             "from its own start")
-        idata, summary, as_, ap, ay, at = _posterior(record, build_model(effects), train, test, out / "refit",
-                                                     cost, seed, chosen_map, time_left())  # fmt: skip
+        idata, summary, as_, ap, ay, at = _posterior(record, build_model(effects), train, test,
+                                                     out / "refit", cost, seed, chosen_map,
+                                                     _time_left(cost, t_start))  # fmt: skip
         masks_after = _masks(len(at), _windows_from(at, train, test), split)
         gap_after = _gap(as_, ap, ay, masks_after)
         params = parameter_summary(idata, build_model(effects))

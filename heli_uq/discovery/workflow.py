@@ -277,7 +277,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
                 starts = warm_starts(current_map, current + [e], implied.get(e, {}))
                 singles[key] = task(current + [e], starts, nests=(current_res, current_map))
         fresh = run_round(singles, store, record, scheduler, say)
-        results = {k: kept[k] if k in kept else fresh[k] for k in [*kept, *fresh]}
+        results = {**kept, **fresh}  # disjoint: a kept candidate is not fitted again
         kept = {}
         if not restarted:
             restarted = True

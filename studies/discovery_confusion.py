@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
 import copy
 import json
 import pathlib
@@ -136,7 +137,8 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
                                     args.hidden_omega_s, args.hold)  # fmt: skip
     split = 0.7 * args.seconds
     t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory() as tmp:
+    keep = args.keep and pathlib.Path(args.keep) / f"{case.replace(':', '_')}_{inputs}_{seed}"
+    with contextlib.nullcontext(keep) if keep else tempfile.TemporaryDirectory() as tmp:
         res = discover(rec, tmp, train=(0.0, split), test=(split, args.seconds), budget=args.budget,
                        seed=seed, scheduler=args.scheduler, candidates=args.candidates,
                        max_effects=max(1, len(model.effects)))  # fmt: skip
@@ -240,6 +242,9 @@ def main(argv=None) -> int:
     ap.add_argument("--hold", type=_hold, default=None, metavar="MIN:MAX",
                     help="hold time [s] of a rig_steps level (default: the package's 3-14 s)")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
+    ap.add_argument("--keep", default=None, metavar="DIR",
+                    help="keep each record's discover outputs in DIR/CASE_INPUTS_SEED (default: "
+                         "a temporary directory)")
     ap.add_argument("--out", default=str(RESULTS / "discovery_confusion.jsonl"))
     args = ap.parse_args(argv)
     args.hidden = copy.deepcopy(HIDDEN)  # the values run_case hides: HIDDEN with the overrides

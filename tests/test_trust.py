@@ -475,6 +475,52 @@ def test_a_time_limited_nuts_run_keeps_its_draws_and_a_resume_completes_it(synth
         nuts.run_nuts(synthetic_problem, tmp_path / "bad", time_limit=-1.0, **kw)
 
 
+def test_a_warmup_past_the_time_limit_is_cut_and_a_resume_keeps_the_cut(synthetic_problem,
+                                                                        synthetic_start, tmp_path,
+                                                                        monkeypatch):  # fmt: skip
+    """A warm-up that would pass the time limit starts again, shorter, adapting the step
+    size only; the run says so (info, a health note), and a resume samples on with the cut
+    warm-up's step size and metric instead of adapting again."""
+    from heli_uq.inference import nuts, warmup_limit
+    from heli_uq.output.health import check_health
+
+    monkeypatch.setattr(nuts, "BLOCK_SECONDS", 1e-9)
+    monkeypatch.setattr(nuts, "MIN_DRAWS_AT_LIMIT", 7)
+    monkeypatch.setattr(warmup_limit, "PACE_ITERATIONS", 3)
+    monkeypatch.setattr(warmup_limit, "MIN_WARMUP_AT_LIMIT", 8)
+    kw = dict(chains=2, warmup=40, draws=30, chunk=10, seed=3, progress=False, start=synthetic_start)
+    cut = tmp_path / "cut"
+    limited = nuts.run_nuts(synthetic_problem, cut, time_limit=0.0, **kw)
+    info = limited.info
+    assert (info["warmup"], info["warmup_requested"], info["draws"]) == (8, 40, 7), info
+    assert info["adapt_mass_matrix"] is False
+    summary = {k: info[k] for k in ("warmup", "warmup_requested", "draws", "draws_requested")}
+    notes = check_health({"sampler": "nuts", "chains": 2, **summary})["notes"]
+    assert any("cut from 40 to 8 iterations" in n for n in notes), notes
+    resumed = nuts.run_nuts(synthetic_problem, cut, resume=True, **kw)
+    assert resumed.info["warmup"] == 8 and resumed.info["draws"] == 30
+    # numpyro adapts while its iteration count is below the warm-up it was built with: a
+    # resume built with the requested 40 would go on changing the step size.
+    assert resumed.info["step_size"] == limited.info["step_size"]
+    for k in limited.samples:
+        np.testing.assert_array_equal(limited.samples[k], resumed.samples[k][:, :7], err_msg=k)
+
+
+@pytest.mark.parametrize(("pace", "left", "expected"), [
+    (1.0, 2000.0, None),   # 1000 + 100 iterations fit in 2000 s: not cut
+    (1.0, 500.0, 380),     # (500 - 20) s / 1 s - 100 draws
+    (1.0, 100.0, 150),     # nothing fits: the shortest warm-up, and the limit will pass
+    (0.001, 1.1, None),    # 1088 iterations at 1 ms: not cut
+])  # fmt: skip
+def test_sized_warmup_leaves_time_for_the_fewest_draws(pace, left, expected):
+    from heli_uq.inference.warmup_limit import MIN_WARMUP_AT_LIMIT, sized_warmup
+
+    assert MIN_WARMUP_AT_LIMIT == 150
+    got = sized_warmup(1000, 12, pace, left, restart_seconds=20.0, min_draws=100)
+    assert got == expected
+    assert sized_warmup(MIN_WARMUP_AT_LIMIT, 12, 1.0, 0.0, 20.0, 100) is None  # never cut below it
+
+
 #: An interrupt is honoured within this many seconds (the issue's requirement).
 INTERRUPT_LATENCY_S = 10.0
 

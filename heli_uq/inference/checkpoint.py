@@ -47,6 +47,11 @@ class Checkpoint:
         for f in self.directory.glob("*_chunk_*.pkl"):
             f.unlink()
         atomic_write_text(self.directory / MANIFEST_FILE, json.dumps(manifest, indent=1, sort_keys=True))
+        self.update_start(start_info)
+
+    def update_start(self, start_info: dict) -> None:
+        """Save the run's start again, with facts a resume needs that the run found out
+        after it started (e.g. a warm-up cut to its time limit)."""
         atomic_write_bytes(self.directory / _START, pickle.dumps({"start": start_info}))
 
     def manifest(self) -> dict | None:

@@ -32,6 +32,7 @@ from jax import lax
 from numpyro.infer import NUTS
 
 from heli_uq.errors import ParameterError
+from heli_uq.inference import warmup_limit
 from heli_uq.inference.checkpoint import Checkpoint
 from heli_uq.inference.density import constrain_draws, coordinate_names, log_density_setup
 from heli_uq.inference.interrupt import Interrupted, Progress, deferred_interrupt
@@ -200,10 +201,14 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         The MAP start; computed if not given.
     time_limit : float, optional
         Wall seconds from the call after which sampling stops at the end of the current
-        block, once every chain has :data:`MIN_DRAWS_AT_LIMIT` draws (the warm-up is never
-        cut).  The draws made are kept and saved; ``info["draws_requested"]`` records the
-        number asked for, and a ``resume`` with the same settings continues to it.  Not
-        part of the run's settings: it changes how many draws there are, not their law.
+        block, once every chain has :data:`MIN_DRAWS_AT_LIMIT` draws.  The draws made are
+        kept and saved; ``info["draws_requested"]`` records the number asked for, and a
+        ``resume`` with the same settings continues to it.  A warm-up that would not leave
+        time for those draws (timed over its first iterations) starts again, from the
+        chains' current positions, with the iterations that fit and the step size alone
+        adapted (:mod:`heli_uq.inference.warmup_limit`; ``info["warmup_requested"]``).
+        Not part of the run's settings: it changes how many draws there are and how
+        long the warm-up is, not the target.
 
     Raises
     ------
@@ -246,6 +251,9 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         density = log_density_setup(problem.with_substeps(info["substeps"]), seed=seed)
     problem = density.problem
     smap = SamplerMap.from_info(info)
+    requested_warmup = warmup
+    if "warmup_cut" in info:  # a resumed run whose warm-up its time limit cut
+        warmup, adapt_mass_matrix = info["warmup_cut"]["used"], False
 
     def potential(w):
         x, log_det = smap.x_and_log_det(w)
@@ -255,10 +263,15 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     # building; as a jitted function it is traced and differentiated once and reused there
     # (tracing a block of the base model on a 0.5 s record 3.7-5.3x faster:
     # studies/bench_nuts_trace.py).
-    kernel = NUTS(potential_fn=jax.jit(potential), dense_mass=True, max_tree_depth=max_tree_depth,
-                  target_accept_prob=target_accept, adapt_mass_matrix=adapt_mass_matrix)
+    potential_jit = jax.jit(potential)
+
+    def chain_functions(warmup, adapt_mass_matrix):
+        kernel = NUTS(potential_fn=potential_jit, dense_mass=True, max_tree_depth=max_tree_depth,
+                      target_accept_prob=target_accept, adapt_mass_matrix=adapt_mass_matrix)
+        return _chain_functions(kernel, warmup, parallel)
+
     parallel = jax.local_device_count() >= chains and chains > 1
-    init, block = _chain_functions(kernel, warmup, parallel)
+    init, block = chain_functions(warmup, adapt_mass_matrix)
     done = sum(r["x"].shape[1] for r in records)
     warm_seconds = 0.0
     if records or warm_record:
@@ -278,6 +291,10 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         w0 = initial_draws(log_density, chains, smap.x_map.size, rng, on_failure="map")
         keys = jax.random.split(jax.random.PRNGKey(seed), chains)
         state, it = init(keys, jnp.asarray(w0)), 0
+    # Size the warm-up to the time limit once, in a fresh run, after the first block
+    # (compiling) and PACE_ITERATIONS more.
+    sizing = time_limit is not None and it == 0 and not records and not warm_record
+    first_block_seconds = 0.0
     total = warmup + draws
     bar = Progress(progress)
     pending: list[tuple] = []
@@ -292,9 +309,26 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
             seconds = time.perf_counter() - t0
             if it < warmup:
                 warm_seconds += seconds
+                first_block_seconds = first_block_seconds or seconds
             else:
                 pending.append(tuple(np.asarray(o)[:, :n] for o in out))
             it += n
+            if sizing and warmup > it >= FIRST_BLOCK + warmup_limit.PACE_ITERATIONS:
+                sizing, n_min = False, min(draws, MIN_DRAWS_AT_LIMIT)
+                pace = (warm_seconds - first_block_seconds) / (it - FIRST_BLOCK)
+                left = time_limit - (time.perf_counter() - t_start)
+                cut = warmup_limit.sized_warmup(warmup, it, pace, left, first_block_seconds, n_min)
+                if cut is not None:
+                    info["warmup_cut"] = {"requested": warmup, "used": cut, "pace_s": pace,
+                                          "discarded_iterations": it}  # fmt: skip
+                    checkpoint.update_start(info)
+                    warmup, adapt_mass_matrix, total = cut, False, cut + draws
+                    init, block = chain_functions(warmup, adapt_mass_matrix)
+                    keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 1), chains)
+                    state, it, warm_seconds, n_block, paced = init(keys, state.z), 0, 0.0, FIRST_BLOCK, False
+                    bar.close(f"NUTS warm-up cut to {cut} iterations (step size only) to leave time for "
+                              f"{n_min} draws per chain at {pace:.2g} s per iteration")
+                    continue
             if paced:  # the first block compiles: the pace is taken from the later ones
                 n_block = int(np.clip(round(BLOCK_SECONDS * n / max(seconds, 1e-9)), 1, BLOCK_MAX))
             paced = True
@@ -333,7 +367,10 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     stats = {k: np.concatenate([r["stats"][k] for r in records], axis=1)[:, :draws]
              for k in records[0]["stats"]}  # fmt: skip
     out_info = {k: v for k, v in info.items() if k not in ("x_map", "covariance")}
+    if warmup != requested_warmup:
+        out_info["warmup_requested"] = requested_warmup
     out_info.update(sampler="nuts", chains=chains, warmup=warmup, draws=draws, seed=seed,
+                    adapt_mass_matrix=adapt_mass_matrix,
                     chain_method=method, warmup_seconds=warm_seconds,
                     coordinates="laplace_whitened",
                     wall_coordinates=[coordinate_names(density)[i] for i in smap.indices],

@@ -78,7 +78,7 @@ def convergence(idata) -> dict:
                                                         if i.split("[")[0] in torques], "r_hat"].max())
     for key in ("map_seconds", "warmup_seconds", "map_decrement", "map_decrement_max", "target_accept",
                 "substeps", "wall_coordinates", "wall_sides", "max_tree_depth", "metric_factors",
-                "draws_requested"):
+                "draws_requested", "warmup_requested", "warmup", "adapt_mass_matrix"):
         if key in info:
             out[key] = info[key]
     stats = idata.sample_stats

@@ -158,8 +158,9 @@ def add_parser(subparsers):
                         " model (friction) can spend the whole tree on every draw, a lower D"
                         " bounds the cost per draw (summary.json reports the saturation)")
     p.add_argument("--time-limit", type=float, default=None, metavar="MIN",
-                   help="NUTS: stop sampling after MIN minutes with the draws made (after the"
-                        " warm-up, at least 100 per chain); --resume later continues to --draws")
+                   help="NUTS: stop sampling after MIN minutes with the draws made (at least"
+                        " 100 per chain; a warm-up that would leave no time for them is cut and"
+                        " adapts the step size only); --resume later continues to --draws")
     p.add_argument("--walkers", type=int, default=None,
                    help="emcee walkers per ensemble (default: 2 * dim + 2)")
     p.add_argument("--error", choices=["iid", "ar1"], default="ar1",

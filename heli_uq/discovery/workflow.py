@@ -90,9 +90,10 @@ class Budget:
     leapfrog steps per draw); ``adapt_mass_matrix``: the refit adapts a dense mass matrix in
     whitened coordinates (``False``, quick: the level-scaled Laplace covariance stays the metric);
     ``minutes``: the whole run's time target: a NUTS posterior still sampling when it would
-    be exceeded stops with the draws made (after its warm-up, at least
-    :data:`~heli_uq.inference.nuts.MIN_DRAWS_AT_LIMIT` per chain; the summary's health
-    notes say so), ``None``: every draw is made (quick: a stiff friction refit's few hundred
+    be exceeded stops with the draws made (at least
+    :data:`~heli_uq.inference.nuts.MIN_DRAWS_AT_LIMIT` per chain), and one whose warm-up
+    would leave no time for those is cut (:mod:`heli_uq.inference.warmup_limit`); the
+    summary's health notes say so; ``None``: every draw is made (quick: a stiff friction refit's few hundred
     draws are its interval; fewer would widen the chance of missing the truth).
     """
 

@@ -484,8 +484,8 @@ def test_the_refit_of_a_split_run_starts_from_the_candidates_map_alone(monkeypat
 
 def test_the_full_budget_gives_its_nuts_runs_the_time_its_target_leaves():
     """The full budget's 60 min target: a run 10 min in leaves its refit 50 min less the
-    time the outputs need (half of it to the base model's posterior when both are
-    sampled); past the target, none; the quick budget has no target."""
+    time the outputs need (a share of it to the base model's posterior when both are
+    sampled, less than the refit's); past the target, none; the quick budget has no target."""
     import time
 
     from heli_uq.discovery import report
@@ -496,6 +496,8 @@ def test_the_full_budget_gives_its_nuts_runs_the_time_its_target_leaves():
     left = report._time_left(full, now - 600.0)
     expected = 60.0 * full.minutes - 600.0 - report.OUTPUT_SECONDS
     assert full.minutes == 60.0 and expected - 5.0 < left <= expected
-    assert report._time_left(full, now - 600.0, 0.5) == pytest.approx(left / 2, abs=2.5)
+    share = report.BEFORE_SHARE
+    assert 0.0 < share < 0.5
+    assert report._time_left(full, now - 600.0, share) == pytest.approx(left * share, abs=2.5)
     assert report._time_left(full, now - 7200.0) == 0.0
     assert report._time_left(BUDGETS["quick"], now - 600.0) is None

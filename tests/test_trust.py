@@ -2,6 +2,7 @@
 range of simulations, memory limits, interrupts, bounded outputs, messages."""
 
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -477,7 +478,7 @@ def test_a_time_limited_nuts_run_keeps_its_draws_and_a_resume_completes_it(synth
 
 def test_a_warmup_past_the_time_limit_is_cut_and_a_resume_keeps_the_cut(synthetic_problem,
                                                                         synthetic_start, tmp_path,
-                                                                        monkeypatch):  # fmt: skip
+                                                                        monkeypatch, caplog):  # fmt: skip
     """A warm-up that would pass the time limit starts again, shorter, adapting the step
     size only; the run says so (info, a health note), and a resume samples on with the cut
     warm-up's step size and metric instead of adapting again."""
@@ -490,7 +491,9 @@ def test_a_warmup_past_the_time_limit_is_cut_and_a_resume_keeps_the_cut(syntheti
     monkeypatch.setattr(warmup_limit, "MIN_WARMUP_AT_LIMIT", 8)
     kw = dict(chains=2, warmup=40, draws=30, chunk=10, seed=3, progress=False, start=synthetic_start)
     cut = tmp_path / "cut"
-    limited = nuts.run_nuts(synthetic_problem, cut, time_limit=0.0, **kw)
+    with caplog.at_level(logging.INFO, logger="heli_uq"):
+        limited = nuts.run_nuts(synthetic_problem, cut, time_limit=0.0, **kw)
+    assert "NUTS warm-up cut from 40 to 8 iterations" in caplog.text
     info = limited.info
     assert (info["warmup"], info["warmup_requested"], info["draws"]) == (8, 40, 7), info
     assert info["adapt_mass_matrix"] is False
@@ -506,19 +509,19 @@ def test_a_warmup_past_the_time_limit_is_cut_and_a_resume_keeps_the_cut(syntheti
         np.testing.assert_array_equal(limited.samples[k], resumed.samples[k][:, :7], err_msg=k)
 
 
-@pytest.mark.parametrize(("pace", "left", "expected"), [
-    (1.0, 2000.0, None),   # 1000 + 100 iterations fit in 2000 s: not cut
-    (1.0, 500.0, 380),     # (500 - 20) s / 1 s - 100 draws
-    (1.0, 100.0, 150),     # nothing fits: the shortest warm-up, and the limit will pass
-    (0.001, 1.1, None),    # 1088 iterations at 1 ms: not cut
+@pytest.mark.parametrize(("pace", "left", "draws", "expected"), [
+    (1.0, 2000.0, 1000, None),  # 1000 + 100 iterations fit in 2000 s: not cut
+    (1.0, 500.0, 1000, 240),    # (500 - 20) s / 1 s = 480 iterations, half of them warm-up
+    (1.0, 500.0, 100, 380),     # 480 * 1000 / 1100 = 436, but 100 draws must fit too
+    (1.0, 100.0, 1000, 150),    # nothing fits: the shortest warm-up, and the limit will pass
+    (0.001, 1.1, 1000, None),   # 1088 iterations at 1 ms: not cut
 ])  # fmt: skip
-def test_sized_warmup_leaves_time_for_the_fewest_draws(pace, left, expected):
+def test_sized_warmup_shares_the_time_left_as_asked(pace, left, draws, expected):
     from heli_uq.inference.warmup_limit import MIN_WARMUP_AT_LIMIT, sized_warmup
 
     assert MIN_WARMUP_AT_LIMIT == 150
-    got = sized_warmup(1000, 12, pace, left, restart_seconds=20.0, min_draws=100)
-    assert got == expected
-    assert sized_warmup(MIN_WARMUP_AT_LIMIT, 12, 1.0, 0.0, 20.0, 100) is None  # never cut below it
+    assert sized_warmup(1000, draws, 12, pace, left, restart_seconds=20.0, min_draws=100) == expected
+    assert sized_warmup(MIN_WARMUP_AT_LIMIT, 1000, 12, 1.0, 0.0, 20.0, 100) is None  # never cut below it
 
 
 #: An interrupt is honoured within this many seconds (the issue's requirement).

@@ -32,6 +32,11 @@ __all__ = ["write_outputs", "gap_warnings", "DISCOVERY_KEYS"]
 #: A first-step candidate whose held-out V is below this fraction of the base model's but
 #: whose held-out score is negative is named in the report (closer, yet overconfident).
 CLOSER_V_FRACTION = 0.8
+#: Share of the time target left that the base model's NUTS posterior may use when a refit
+#: follows.  The refit is the run's result and the stiffer model: on a pitch friction record
+#: (full budget, 2026-11-28) the base posterior used 24 of its 27 min at half, and the
+#: refit, left 30 min, could keep only 111 draws per chain.
+BEFORE_SHARE = 1.0 / 3.0
 #: Seconds a budget with a time target (:attr:`~heli_uq.discovery.workflow.Budget.minutes`)
 #: keeps for the posterior-predictive simulations, figures and files after its last NUTS
 #: run stops sampling.
@@ -111,7 +116,7 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
     # before
     if full:
         say("NUTS posterior of the base model (before); its times count from its own start")
-        share = 0.5 if added else 1.0  # of the time target left: the refit needs the rest
+        share = BEFORE_SHARE if added else 1.0  # of the time target left: the refit needs the rest
         _, _, bs, bp, by, bt = _posterior(record, base_model, train, test, out / "before", cost, seed,
                                           base_fit.params, _time_left(cost, t_start, share))  # fmt: skip
         problem_windows = _windows_from(bt, train, test)

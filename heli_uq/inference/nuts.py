@@ -22,6 +22,7 @@ step, whatever the block lengths).
 from __future__ import annotations
 
 import dataclasses
+import logging
 import pathlib
 import time
 
@@ -317,7 +318,7 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
                 sizing, n_min = False, min(draws, MIN_DRAWS_AT_LIMIT)
                 pace = (warm_seconds - first_block_seconds) / (it - FIRST_BLOCK)
                 left = time_limit - (time.perf_counter() - t_start)
-                cut = warmup_limit.sized_warmup(warmup, it, pace, left, first_block_seconds, n_min)
+                cut = warmup_limit.sized_warmup(warmup, draws, it, pace, left, first_block_seconds, n_min)
                 if cut is not None:
                     info["warmup_cut"] = {"requested": warmup, "used": cut, "pace_s": pace,
                                           "discarded_iterations": it}  # fmt: skip
@@ -326,8 +327,11 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
                     init, block = chain_functions(warmup, adapt_mass_matrix)
                     keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 1), chains)
                     state, it, warm_seconds, n_block, paced = init(keys, state.z), 0, 0.0, FIRST_BLOCK, False
-                    bar.close(f"NUTS warm-up cut to {cut} iterations (step size only) to leave time for "
-                              f"{n_min} draws per chain at {pace:.2g} s per iteration")
+                    bar.close()  # ends a status line before the message
+                    logging.getLogger(__name__).info(
+                        f"NUTS warm-up cut from {requested_warmup} to {cut} iterations (step size only) "
+                        f"to leave time for {n_min} draws per chain before the time limit, at "
+                        f"{pace:.2g} s per iteration")
                     continue
             if paced:  # the first block compiles: the pace is taken from the later ones
                 n_block = int(np.clip(round(BLOCK_SECONDS * n / max(seconds, 1e-9)), 1, BLOCK_MAX))

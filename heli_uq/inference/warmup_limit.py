@@ -9,7 +9,8 @@ draws it keeps would not fit in the time left, it starts the warm-up again from 
 chains' current positions with fewer iterations that do, adapting the step size only:
 the metric stays the level-scaled Laplace covariance (a dense estimate from a few dozen
 draws is worse than that metric; the quick discovery refit samples stiff friction
-models with it after 150 iterations).
+models with it after 150 iterations).  The iterations that fit are shared between warm-up
+and draws in the requested proportion.
 """
 
 from __future__ import annotations
@@ -26,14 +27,20 @@ PACE_ITERATIONS = 10
 MIN_WARMUP_AT_LIMIT = 150
 
 
-def sized_warmup(warmup: int, done: int, pace: float, seconds_left: float, restart_seconds: float,
-                 min_draws: int) -> int | None:  # fmt: skip
+def sized_warmup(warmup: int, draws: int, done: int, pace: float, seconds_left: float,
+                 restart_seconds: float, min_draws: int) -> int | None:  # fmt: skip
     """The warm-up length to start again with, or None to keep the requested one.
+
+    The iterations that fit in the time left after the restart are shared between the
+    warm-up and the draws in the requested proportion (a shorter run of the same shape):
+    a warm-up that adapts the step size alone needs no more, and every iteration it does
+    not take is a draw.  The warm-up keeps at least :data:`MIN_WARMUP_AT_LIMIT` and leaves
+    at least ``min_draws`` when both fit.
 
     Parameters
     ----------
-    warmup : int
-        Requested warm-up iterations per chain.
+    warmup, draws : int
+        Requested warm-up iterations and draws per chain.
     done : int
         Warm-up iterations already made (lost if the warm-up starts again).
     pace : float
@@ -50,10 +57,12 @@ def sized_warmup(warmup: int, done: int, pace: float, seconds_left: float, resta
     int or None
         None when the rest of the requested warm-up and ``min_draws`` fit in
         ``seconds_left``, or the requested warm-up is no longer than
-        :data:`MIN_WARMUP_AT_LIMIT`; else the iterations that fit after the restart,
-        at least :data:`MIN_WARMUP_AT_LIMIT` (then the limit will be passed).
+        :data:`MIN_WARMUP_AT_LIMIT`; else the warm-up after the restart, at least
+        :data:`MIN_WARMUP_AT_LIMIT` (if even that and ``min_draws`` do not fit, the
+        limit will be passed).
     """
     if warmup <= MIN_WARMUP_AT_LIMIT or pace * (warmup - done + min_draws) <= seconds_left:
         return None
-    fits = math.floor((seconds_left - restart_seconds) / pace) - min_draws
-    return int(min(max(fits, MIN_WARMUP_AT_LIMIT), warmup - 1))
+    fits = math.floor((seconds_left - restart_seconds) / pace)
+    share = min(math.floor(fits * warmup / (warmup + draws)), fits - min_draws)
+    return int(min(max(share, MIN_WARMUP_AT_LIMIT), warmup - 1))

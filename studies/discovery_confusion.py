@@ -163,7 +163,19 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
                 "base": {k: truth[k] for k in RIG_FIT}} if args.base_jitter else {}),
             **({"hidden_omega_s": args.hidden_omega_s}
                if args.hidden_omega_s is not None else {}),
-            **({"hold": list(args.hold)} if args.hold is not None else {})}  # fmt: skip
+            **({"hold": list(args.hold)} if args.hold is not None else {}),
+            **({"refit": refit_facts(keep / "refit" / "summary.json")} if keep else {})}  # fmt: skip
+
+
+def refit_facts(path: pathlib.Path) -> dict | None:
+    """The NUTS refit's size, time and health from its ``summary.json`` (None if none)."""
+    if not path.exists():
+        return None
+    s = json.loads(path.read_text())
+    keys = ("chains", "warmup", "warmup_requested", "draws", "draws_requested", "adapt_mass_matrix",
+            "substeps", "warmup_seconds", "wall_s", "rhat_max", "ess_bulk_min", "ess_tail_min",
+            "divergences", "tree_depth_saturation", "mean_leapfrog_steps")
+    return {k: s[k] for k in keys if k in s} | {"health": s.get("health")}
 
 
 def confusion(path) -> str:

@@ -192,7 +192,7 @@ def plot_experiment(exp) -> Figure:
 
 def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
                title: str | None = None, health: str = "") -> Figure:
-    """Posterior-predictive 50 % and 90 % bands for pitch and yaw with the data on top.
+    """Posterior-predictive 50 % and 90 % bands for pitch and yaw, translucent over the data.
 
     Parameters
     ----------
@@ -217,12 +217,14 @@ def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
     fig, axes = _new_figure(2, (11.0, 6.5))
     for j, (ax, name, sym, color) in enumerate(zip(
             axes, ("pitch", "yaw"), (r"\theta", r"\psi"), (_THETA_COLOR, _PSI_COLOR))):  # fmt: skip
-        ax.fill_between(t, q[0, :, j], q[4, :, j], color=color, alpha=0.25, lw=0,
-                        label="90 % predictive band")
-        ax.fill_between(t, q[1, :, j], q[3, :, j], color=color, alpha=0.5, lw=0,
-                        label="50 % predictive band")
-        ax.plot(t, q[2, :, j], color=color, lw=1.0, label="predictive median")
+        # The translucent bands go over the data: a model that fits at the noise has a band
+        # as narrow as the data's line (13,100 samples), which would hide it underneath.
         ax.plot(t, obs[:, j], color="k", lw=0.6, label="measured")
+        ax.fill_between(t, q[0, :, j], q[4, :, j], color=color, alpha=0.3, lw=0, zorder=3,
+                        label="90 % predictive band")
+        ax.fill_between(t, q[1, :, j], q[3, :, j], color=color, alpha=0.4, lw=0, zorder=3,
+                        label="50 % predictive band")
+        ax.plot(t, q[2, :, j], color=color, lw=1.0, label="predictive median", zorder=4)
         if test_mask is not None and np.any(test_mask):
             t_test = t[np.asarray(test_mask, bool)]
             ax.axvspan(t_test[0], t_test[-1], color="0.85", zorder=-1, label="test window")

@@ -217,6 +217,12 @@ def test_bands_figure_says_unconverged_and_keeps_the_data_readable():
     assert "covers train: 90 %" in healthy.axes[0].get_title(loc="left")
     assert healthy.axes[1].get_ylim()[0] <= np.degrees(drift[..., 1].min())
     assert not healthy.axes[1].texts  # no clipping note
+    # a band as narrow as the noise must not hide under the data's line: bands drawn over it
+    for ax in healthy.axes[:2]:
+        data = next(line for line in ax.lines if line.get_label() == "measured")
+        bands = [c for c in ax.collections if "predictive band" in str(c.get_label())]
+        assert len(bands) == 2 and all(b.get_zorder() > data.get_zorder() for b in bands)
+        assert all(b.get_alpha() < 1 for b in bands)  # and translucent, so the data shows
 
 
 # --------------------------------------------------------------------------- physical range

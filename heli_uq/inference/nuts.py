@@ -320,8 +320,8 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
                 left = time_limit - (time.perf_counter() - t_start)
                 cut = warmup_limit.sized_warmup(warmup, draws, it, pace, left, first_block_seconds, n_min)
                 if cut is not None:
-                    info["warmup_cut"] = {"requested": warmup, "used": cut, "pace_s": pace,
-                                          "discarded_iterations": it}  # fmt: skip
+                    # what a resume needs (the requested length is in the manifest)
+                    info["warmup_cut"] = {"used": cut, "pace_s": pace, "discarded_iterations": it}
                     checkpoint.update_start(info)
                     warmup, adapt_mass_matrix, total = cut, False, cut + draws
                     init, block = chain_functions(warmup, adapt_mass_matrix)

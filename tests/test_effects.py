@@ -25,6 +25,7 @@ from heli_uq.model import (
 )
 from heli_uq.simulation import default_substeps, reference_solve, simulate, solve
 from heli_uq.simulation.reference import solver_error
+from heli_uq.simulation.stiffness import stiffness_check, stiffness_rates, substeps_covering
 
 #: One value per effect parameter: large enough to matter on a record, physically plausible.
 EFFECT_VALUES = {
@@ -238,6 +239,53 @@ def test_sharp_friction_needs_substeps_and_gets_them():
     one = solver_error(values, x0, u, 0.01, model=model, substeps=1, reference=ref)
     assert not one <= 10 * SOLVER_TOL  # NaN (unstable) or far off
     assert solver_error(values, x0, u, 0.01, model=model, substeps=n, reference=ref) <= SOLVER_TOL
+
+
+#: ``rate h`` of the draws the stiffness check is tested on: two within STABLE_STEP, one
+#: stable but past it, two past RK4's stability limit 2.785.
+RATE_STEPS = (1.0, 1.4, 2.5, 3.2, 4.5)
+
+
+def test_stiffness_rates_are_the_friction_slope_at_rest():
+    """The rate a draw is checked with is the slope of the pitch acceleration the friction
+    adds at rest, ``-d a_theta / d omega_theta`` (autodiff of the model's equations), also
+    where a fixed inertia differs from the start value."""
+    model = build_model(["pitch:coulomb_friction"])
+    levels = np.array([0.002, 0.01, 0.04])
+    for fixed in (_values(model), dict(_values(model), J_bc=0.02)):
+        rates = stiffness_rates(model, {"F_c_pitch": levels}, fixed=fixed)
+        for level, rate in zip(levels, rates):
+            def pitch_acc(w, f):
+                p = model.complete(dict(fixed, F_c_pitch=f))
+                x, v, u = jnp.array([-0.5, 0.3]), jnp.array([w, 0.0]), jnp.array([1.3, 1.0])
+                return model.acceleration(model.prepare(p), x, v, u)[0]
+
+            slope = jax.grad(pitch_acc)(0.0, float(level)) - jax.grad(pitch_acc)(0.0, 0.0)
+            np.testing.assert_allclose(rate, -float(slope), rtol=1e-9)
+
+
+def test_stiffness_check_flags_the_draws_the_solver_gets_wrong():
+    """Of five friction draws at 2 substeps, the check counts exactly the two past RK4's
+    stability limit, the adaptive reference finds exactly those two off by more than the
+    tolerance, and the substeps that cover all five bring every one within it."""
+    model = build_model(["pitch:coulomb_friction"])
+    values = _values(model)
+    u = _rig_like_inputs(20.0, seed=5)
+    x0 = [-0.5, 0.3, 0.0, 0.0]
+    dt, substeps = 0.01, 2
+    per_level = stiffness_rates(model, {"F_c_pitch": np.array([1.0])}, fixed=values)[0]
+    levels = np.array([r / (per_level * dt / substeps) for r in RATE_STEPS])
+    rates = stiffness_rates(model, {"F_c_pitch": levels}, fixed=values)
+    check = stiffness_check(model, {"F_c_pitch": levels}, substeps, dt, fixed=values)
+    assert check["beyond"] == 2 and check["of"] == 5 and check["stiffest"] == 4, check
+    covering = substeps_covering(rates, dt)
+    assert covering > substeps
+    for level, rate in zip(levels, rates):
+        p = dict(values, F_c_pitch=float(level))
+        ref = reference_solve(p, x0, u, dt, model=model)
+        error = solver_error(p, x0, u, dt, model=model, substeps=substeps, reference=ref)
+        assert (error > SOLVER_TOL) == (rate > check["rate_limit"]), (rate, error)
+        assert solver_error(p, x0, u, dt, model=model, substeps=covering, reference=ref) <= SOLVER_TOL
 
 
 # ------------------------------------------------------------------ identifiability

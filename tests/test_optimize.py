@@ -310,3 +310,43 @@ def test_substeps_cap_is_a_logged_warning(synthetic_problem, monkeypatch, caplog
     assert start.problem.substeps == synthetic_problem.substeps
     lines = [r.getMessage() for r in caplog.records if r.name == "heli_uq.inference.start"]
     assert len(lines) == 1 and "needs 99 solver substeps" in lines[0], lines
+
+
+def test_laplace_draws_stiffer_than_the_map_raise_the_substeps(synthetic_problem, monkeypatch, caplog):
+    """When the Laplace draws need more substeps than the MAP (a posterior that reaches
+    stiffer models than its mode), the problem is rebuilt with them, logged, and the MAP
+    polished again on it (the returned start is converged on the new problem)."""
+    import logging
+
+    from heli_uq.inference import start as start_module
+
+    need = synthetic_problem.substeps + 1
+    monkeypatch.setattr(start_module, "tail_substeps", lambda problem, *args: need)
+    with caplog.at_level(logging.INFO, logger="heli_uq"):
+        start = start_module.prepare_start(synthetic_problem, n_starts=1, seed=0)
+    assert start.problem.substeps == need
+    assert start.density.problem.substeps == need
+    assert start.map_decrement <= start_module.MAP_DECREMENT_MAX
+    lines = [r.getMessage() for r in caplog.records if r.name == "heli_uq.inference.start"]
+    assert any(f"-> {need}" in line for line in lines), lines
+
+
+def test_tail_substeps_cover_the_laplace_draws_of_a_friction_posterior():
+    """On a record with yaw friction hidden, the substeps chosen cover the stiffness of
+    fresh Laplace draws (another seed): each keeps ``rate h`` within RK4's stability limit."""
+    from heli_uq.inference import prepare_start
+    from heli_uq.model import build_model
+    from heli_uq.probability import make_problem
+    from heli_uq.simulation import SYNTHETIC_PARAMS, synthetic_experiment
+    from heli_uq.simulation.stiffness import RK4_STABILITY, stiffness_rates
+
+    model = build_model(["yaw:coulomb_friction"])
+    rec = synthetic_experiment({**SYNTHETIC_PARAMS, "F_c_yaw": 0.005}, duration=20.0, seed=3, model=model)
+    problem = make_problem(rec, model=model, error="iid")
+    start = prepare_start(problem, n_starts=1, seed=0)
+    draws = start.laplace_draws(1000, seed=11)
+    fixed = {k: float(p.a) for k, p in problem.priors.params.items() if not p.free}
+    rates = stiffness_rates(model, draws, fixed=fixed, thetas=problem.y[:, 0])
+    h = problem.dt / start.problem.substeps
+    assert start.problem.substeps > 1
+    assert np.max(rates) * h < RK4_STABILITY, (np.max(rates), start.problem.substeps)

@@ -106,7 +106,9 @@ def test_manifest_train_window_in_seconds(record):
 HEALTHY = {"chains": 4, "draws": 500, "rhat_max": 1.003, "ess_bulk_min": 1500.0,
            "ess_tail_min": 1200.0, "divergences": 0, "tree_depth_saturation": 0.0,
            "step_size": [0.31, 0.28, 0.33, 0.30], "bfmi_min": 0.9, "map_decrement": 1e-12,
-           "unphysical_draws": {"count": 0, "of": 200}, "solver_error_rad": None}  # fmt: skip
+           "unphysical_draws": {"count": 0, "of": 200}, "solver_error_rad": None, "substeps": 4,
+           "stiffness": {"rate_max": 470.0, "rate_limit": 1114.0, "beyond": 0, "of": 2000,
+                         "stiffest": 7}}  # fmt: skip
 #: One failed check each (the issue's measured failure where it gave one), and its flag.
 FAILURES = {
     "R-hat": ({"rhat_max": 1.9}, "UNCONVERGED"),
@@ -120,6 +122,8 @@ FAILURES = {
     "MAP did not converge": ({"map_decrement": 1.6}, "UNCONVERGED"),
     "physical range": ({"unphysical_draws": {"count": 12, "of": 200}}, "unphysical"),
     "adaptive reference": ({"solver_error_rad": 3e-3}, "unphysical"),
+    "stiffer than the solver": ({"stiffness": {"rate_max": 1300.0, "rate_limit": 1114.0, "beyond": 3,
+                                               "of": 2000, "stiffest": 7}}, "unphysical"),
 }  # fmt: skip
 
 
@@ -493,6 +497,7 @@ def test_a_warmup_past_the_time_limit_is_cut_and_a_resume_keeps_the_cut(syntheti
 
     monkeypatch.setattr(nuts, "BLOCK_SECONDS", 1e-9)
     monkeypatch.setattr(nuts, "MIN_DRAWS_AT_LIMIT", 7)
+    monkeypatch.setattr(warmup_limit, "PACE_SKIP", 2)
     monkeypatch.setattr(warmup_limit, "PACE_ITERATIONS", 3)
     monkeypatch.setattr(warmup_limit, "MIN_WARMUP_AT_LIMIT", 8)
     kw = dict(chains=2, warmup=40, draws=30, chunk=10, seed=3, progress=False, start=synthetic_start)
@@ -503,6 +508,8 @@ def test_a_warmup_past_the_time_limit_is_cut_and_a_resume_keeps_the_cut(syntheti
     info = limited.info
     assert (info["warmup"], info["warmup_requested"], info["draws"]) == (8, 40, 7), info
     assert info["adapt_mass_matrix"] is False
+    # one iteration per block: decided after the compiling block, 2 untimed and 3 timed
+    assert info["warmup_cut"]["discarded_iterations"] == nuts.FIRST_BLOCK + 2 + 3, info
     summary = {k: info[k] for k in ("warmup", "warmup_requested", "draws", "draws_requested")}
     notes = check_health({"sampler": "nuts", "chains": 2, **summary})["notes"]
     assert any("cut from 40 to 8 iterations" in n for n in notes), notes
@@ -515,12 +522,27 @@ def test_a_warmup_past_the_time_limit_is_cut_and_a_resume_keeps_the_cut(syntheti
         np.testing.assert_array_equal(limited.samples[k], resumed.samples[k][:, :7], err_msg=k)
 
 
+def test_the_pace_leaves_out_the_settling_iterations():
+    """Blocks of 2 s per iteration while the step size settles, then 0.5 s: the pace is the
+    later one, measured once PACE_ITERATIONS are timed after FIRST + PACE_SKIP."""
+    from heli_uq.inference.warmup_limit import PACE_ITERATIONS, PACE_SKIP, PaceMeter
+
+    first, meter, seconds, paces = 2, PaceMeter(2), 0.0, []
+    for it in range(first + 1, first + PACE_SKIP + 2 * PACE_ITERATIONS):
+        seconds += 2.0 if it <= first + PACE_SKIP else 0.5
+        paces.append((it, meter.update(it, seconds)))
+    measured = [(it, p) for it, p in paces if p is not None]
+    assert measured[0] == (first + PACE_SKIP + PACE_ITERATIONS, 0.5), measured[:2]
+
+
 @pytest.mark.parametrize(("pace", "left", "draws", "expected"), [
     (1.0, 2000.0, 1000, None),  # 1000 + 100 iterations fit in 2000 s: not cut
     (1.0, 500.0, 1000, 240),    # (500 - 20) s / 1 s = 480 iterations, half of them warm-up
     (1.0, 500.0, 100, 380),     # 480 * 1000 / 1100 = 436, but 100 draws must fit too
     (1.0, 100.0, 1000, 150),    # nothing fits: the shortest warm-up, and the limit will pass
     (0.001, 1.1, 1000, None),   # 1088 iterations at 1 ms: not cut
+    (0.2, 245.0, 1000, 562),    # uncut: 237 draws; (245 - 20) / 0.2 = 1125 shared, 563 draws
+    (1.0, 1900.0, 1000, None),  # uncut: 912 draws; cut: 940, not 1.5 times as many
 ])  # fmt: skip
 def test_sized_warmup_shares_the_time_left_as_asked(pace, left, draws, expected):
     from heli_uq.inference.warmup_limit import MIN_WARMUP_AT_LIMIT, sized_warmup

@@ -292,9 +292,10 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         w0 = initial_draws(log_density, chains, smap.x_map.size, rng, on_failure="map")
         keys = jax.random.split(jax.random.PRNGKey(seed), chains)
         state, it = init(keys, jnp.asarray(w0)), 0
-    # Size the warm-up to the time limit once, in a fresh run, after the first block
-    # (compiling) and PACE_ITERATIONS more.
+    # Size the warm-up to the time limit once, in a fresh run, at the pace measured after
+    # the first block (compiling) and the first iterations (warmup_limit.PaceMeter).
     sizing = time_limit is not None and it == 0 and not records and not warm_record
+    meter = warmup_limit.PaceMeter(FIRST_BLOCK)
     first_block_seconds = 0.0
     total = warmup + draws
     bar = Progress(progress)
@@ -314,9 +315,9 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
             else:
                 pending.append(tuple(np.asarray(o)[:, :n] for o in out))
             it += n
-            if sizing and warmup > it >= FIRST_BLOCK + warmup_limit.PACE_ITERATIONS:
+            pace = meter.update(it, warm_seconds) if sizing and it < warmup else None
+            if pace is not None:
                 sizing, n_min = False, min(draws, MIN_DRAWS_AT_LIMIT)
-                pace = (warm_seconds - first_block_seconds) / (it - FIRST_BLOCK)
                 left = time_limit - (time.perf_counter() - t_start)
                 cut = warmup_limit.sized_warmup(warmup, draws, it, pace, left, first_block_seconds, n_min)
                 if cut is not None:

@@ -8,10 +8,16 @@ covariance, and the number of solver substeps the fitted parameters need.
 2. **MAP** on the full log posterior (:func:`heli_uq.inference.map.find_map`): damped
    Newton steps from the least-squares fits (optionally after L-BFGS).
 3. **Substeps.**  A stiff effect (sharp friction) needs more RK4 substeps the larger its
-   fitted level; if the MAP needs more than the problem has (with a margin of
-   :data:`SUBSTEP_MARGIN` for the posterior spread), the problem is rebuilt with them and
-   the MAP polished again, so every later simulation is accurate.
-4. **Laplace covariance** at the MAP.
+   fitted level; if the MAP needs more than the problem has, the problem is rebuilt with
+   them and the MAP polished again.
+4. **Laplace covariance** at the MAP; then the substeps are checked once more against the
+   stiffness of :data:`TAIL_DRAWS` Laplace draws
+   (:func:`heli_uq.simulation.stiffness.substeps_covering`), so that the posterior's draws,
+   not only its mode, are simulated accurately; if they need more, the MAP is polished and
+   the covariance computed again.  (Until 2026-11-28 the MAP's stiffness times 2 decided:
+   on a pitch friction record that gave 6 substeps where the stiffest of 1992 NUTS draws
+   needs 4, and a posterior wider in the stiffness than a factor 2 would have been simulated
+   wrongly in its tail, with no sign.)
 
 With a neural term (the hybrid model) the Newton polish is capped at
 :data:`NETWORK_NEWTON_STEPS` on the best least-squares start and then moved off any saddle
@@ -37,13 +43,16 @@ from heli_uq.model.tables import X0_NAMES
 from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.probability.problem import Problem
 from heli_uq.simulation.solver import default_substeps
+from heli_uq.simulation.stiffness import stiffness_rates, substeps_covering
 
 __all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "initial_draws", "whitening",
-           "SUBSTEP_MARGIN", "MAX_SUBSTEPS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
+           "TAIL_DRAWS", "MAX_SUBSTEPS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
            "NETWORK_MAP_DECREMENT_MAX", "PoorBasin"]  # fmt: skip
 
-#: Substeps are chosen for this multiple of the MAP's stiffness (the posterior spreads).
-SUBSTEP_MARGIN = 2.0
+#: Laplace draws (seeded) whose stiffness the substeps must cover (their maximum is about
+#: the 99.8 % quantile of the rate).  The output stage checks every posterior draw again
+#: (:func:`heli_uq.simulation.stiffness.stiffness_check`).
+TAIL_DRAWS = 256
 #: Most substeps :func:`prepare_start` gives a problem.  A MAP that needs more (friction
 #: far sharper than the rig's) is left at this number, with a warning: such a stiff mode
 #: is better smoothed (a larger ``omega_s``) than resolved.
@@ -234,9 +243,28 @@ def whitening(start_info: dict) -> tuple[np.ndarray, np.ndarray]:
 
 
 def required_substeps(problem: Problem, params: dict) -> int:
-    """Substeps the model needs at ``params`` (with :data:`SUBSTEP_MARGIN`) on the window."""
-    return default_substeps(problem.model, params, problem.dt, margin=SUBSTEP_MARGIN,
-                            thetas=problem.y[: problem.n_train, 0])  # fmt: skip
+    """Substeps the model needs at ``params`` on the fitting window."""
+    return default_substeps(problem.model, params, problem.dt, thetas=problem.y[: problem.n_train, 0])
+
+
+def tail_substeps(problem: Problem, density: LogDensity, x_map, cov, seed: int = 0) -> int:
+    """Substeps that cover the stiffness of :data:`TAIL_DRAWS` draws of ``N(x_map, cov)``
+    (the sampler's unconstrained coordinates) on the fitting window."""
+    rng = np.random.default_rng(seed)
+    x = rng.multivariate_normal(np.asarray(x_map), np.asarray(cov), TAIL_DRAWS, method="eigh")
+    draws = constrain_draws(density, x)
+    fixed = {k: float(p.a) for k, p in problem.priors.params.items() if not p.free}
+    rates = stiffness_rates(problem.model, draws, fixed=fixed, thetas=problem.y[: problem.n_train, 0])
+    return substeps_covering(rates[np.isfinite(rates)], problem.dt)
+
+
+def _capped(need: int, what: str) -> int:
+    if need > MAX_SUBSTEPS:
+        logging.getLogger(__name__).warning(
+            f"{what} needs {need} solver substeps per sample for its stiffest term; using "
+            f"{MAX_SUBSTEPS} (MAX_SUBSTEPS): the simulation may be inaccurate; consider "
+            "smoother friction (a larger omega_s)")
+    return min(need, MAX_SUBSTEPS)
 
 
 def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
@@ -294,19 +322,21 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
     for _ in range(3):  # raise the substeps until the MAP's stiffness is covered
         sites = density.unravel(jnp.asarray(x_map))
         phys = {k: float(v) for k, v in problem.coords.to_physical(_full_z(problem, sites)).items()}
-        need = required_substeps(problem, phys)
-        if need > MAX_SUBSTEPS:
-            logging.getLogger(__name__).warning(
-                f"the MAP needs {need} solver substeps per sample for its stiffest term; using "
-                f"{MAX_SUBSTEPS} (MAX_SUBSTEPS): the simulation may be inaccurate; consider "
-                "smoother friction (a larger omega_s)")
-            need = MAX_SUBSTEPS
+        need = _capped(required_substeps(problem, phys), "the MAP")
         if need <= problem.substeps:
             break
         problem = problem.with_substeps(need)
         density = log_density_setup(problem, seed=seed)
         x_map, value, grad_max, decrement, _ = newton_polish(density, x_map, max(newton_steps, 1))
     _, cov = laplace(density, x_map)
+    need = _capped(tail_substeps(problem, density, x_map, cov, seed), "the Laplace approximation")
+    if need > problem.substeps:  # the posterior's spread reaches stiffer models than its mode
+        logging.getLogger(__name__).info(f"solver substeps {problem.substeps} -> {need}: the stiffest "
+                                         f"of {TAIL_DRAWS} Laplace draws needs them")  # fmt: skip
+        problem = problem.with_substeps(need)
+        density = log_density_setup(problem, seed=seed)
+        x_map, value, grad_max, decrement, _ = newton_polish(density, x_map, max(newton_steps, 1))
+        _, cov = laplace(density, x_map)
     return Start(problem, density, np.asarray(x_map), float(value), cov, time.perf_counter() - t0,
                  float(grad_max), float(decrement),
                  NETWORK_MAP_DECREMENT_MAX if network else MAP_DECREMENT_MAX)  # fmt: skip

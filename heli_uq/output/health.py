@@ -20,7 +20,8 @@ with the measured value and the limit.  Checks, and the flag they raise:
   the draws it made).
 * **unphysical**: posterior-predictive draws whose simulation leaves the physical range
   (:mod:`heli_uq.simulation.physical`: |pitch| > 90 deg or non-finite); the fixed-step
-  solver off the adaptive reference by more than the tolerance.
+  solver off the adaptive reference by more than the tolerance; draws stiffer than the
+  solver's substeps keep stable (:func:`heli_uq.simulation.stiffness.stiffness_check`).
 
 The result, ``{"ok", "flags", "warnings", "notes"}``, goes into ``summary.json`` (``health``), into
 the title of ``bands.png`` (which then claims no coverage), and into the CLI's warning
@@ -115,6 +116,12 @@ def _physical_warnings(s: dict, solver_tol: float | None) -> list[str]:
     if bad.get("count", 0) > 0:
         out.append(f"{bad['count']} of {bad['of']} posterior-predictive simulations leave the "
                    "physical range (|pitch| > 90 deg or a blow-up)")  # fmt: skip
+    stiff = s.get("stiffness") or {}
+    if stiff.get("beyond", 0) > 0:
+        out.append(f"{stiff['beyond']} of {stiff['of']} draws are stiffer than the solver's "
+                   f"{s.get('substeps', '?')} substeps keep stable (rate up to "
+                   f"{stiff['rate_max']:.4g} 1/s, limit {stiff['rate_limit']:.4g}): their "
+                   "simulations are wrong; more substeps are needed")  # fmt: skip
     err = s.get("solver_error_rad")
     if solver_tol is not None and err is not None and not err <= solver_tol:
         out.append(f"the fixed-step solver is {err:.2g} rad from the adaptive reference "

@@ -4,7 +4,8 @@ diagnostics -> files.  The CLI's ``sample`` command is a thin layer over :func:`
 Files written to ``out_dir``: ``posterior.nc`` (InferenceData, with the model description
 in its attributes), ``summary.csv`` (arviz summary in physical units), ``summary.json``
 (convergence, parameters with 95 % intervals, RMSE, coverage, the solver's accuracy at
-the draw of highest density, wall time), ``bands.png`` (posterior-predictive bands), and
+the draw of highest density and the stiffest draw, the draws' stiffness against the solver's
+stability limit, wall time), ``bands.png`` (posterior-predictive bands), and
 ``chunks/`` (draws saved as they come).
 """
 
@@ -34,6 +35,7 @@ from heli_uq.output.plots import plot_bands, save_figure
 from heli_uq.probability.priors import PriorSet
 from heli_uq.probability.problem import make_problem
 from heli_uq.simulation.reference import solver_error
+from heli_uq.simulation.stiffness import stiffness_check
 
 __all__ = ["sample_posterior", "bands_figure", "parameter_summary", "SOLVER_TOL"]
 
@@ -59,26 +61,40 @@ def parameter_summary(idata, model: HeliModel) -> dict:
     return out
 
 
-def _solver_check(problem, idata) -> float | None:
-    """Angle error [rad] of the fixed-step solver against the adaptive reference at the
-    draw of highest posterior density, over the whole span (``inf`` if the fixed-step
-    solve fails there, NaN if the reference does); None for a model without stiff terms,
-    whose RK4 error is below 1e-6 rad on the record at one substep (the tests check it)."""
-    post = idata.posterior
-    lp = np.asarray(idata.sample_stats["lp"])
-    chain, draw = np.unravel_index(int(np.nanargmax(lp)), lp.shape)
-    best = post.isel(chain=int(chain), draw=int(draw))
+def _draw_point(problem, post, chain: int, draw: int) -> tuple[dict, list]:
+    best = post.isel(chain=chain, draw=draw)
     params = {n: float(best[n]) if n in best else float(p.a)
               for n, p in problem.priors.params.items()}  # fmt: skip
-    x0 = [float(best[n]) for n in X0_NAMES]
-    if problem.model.stiffness(params) == 0.0:
-        return None
-    try:
-        error = solver_error(params, x0, problem.u, problem.dt, model=problem.model,
-                             substeps=problem.substeps)  # fmt: skip
-    except ParameterError:  # the reference itself failed: report, do not crash the study
-        return float("nan")
-    return error if np.isfinite(error) else float("inf")
+    return params, [float(best[n]) for n in X0_NAMES]
+
+
+def _solver_check(problem, idata) -> tuple[float | None, dict | None]:
+    """``(error, stiffness)``: the fixed-step solver's angle error [rad] against the adaptive
+    reference over the whole span, the larger of the draw of highest posterior density
+    and the stiffest draw (``inf`` if the fixed-step solve fails, NaN if the reference
+    does), and :func:`~heli_uq.simulation.stiffness.stiffness_check` of every draw.
+    ``(None, None)`` for a model without stiff terms, whose RK4 error is below 1e-6 rad on
+    the record at one substep (the tests check it)."""
+    post = idata.posterior
+    draws = {n: np.asarray(post[n]).ravel() for n in problem.priors.params if n in post}
+    fixed = {n: float(p.a) for n, p in problem.priors.params.items() if n not in post}
+    stiffness = stiffness_check(problem.model, draws, problem.substeps, problem.dt, fixed=fixed,
+                                thetas=problem.y[: problem.n_train, 0])  # fmt: skip
+    if stiffness is None:
+        return None, None
+    lp = np.asarray(idata.sample_stats["lp"])
+    points = {np.unravel_index(int(np.nanargmax(lp)), lp.shape),
+              np.unravel_index(stiffness["stiffest"], lp.shape)}
+    errors = []
+    for chain, draw in sorted(points):
+        params, x0 = _draw_point(problem, post, int(chain), int(draw))
+        try:
+            errors.append(solver_error(params, x0, problem.u, problem.dt, model=problem.model,
+                                       substeps=problem.substeps))  # fmt: skip
+        except ParameterError:  # the reference itself failed: report, do not crash the study
+            return float("nan"), stiffness
+    error = max(errors)
+    return (error if np.isfinite(error) else float("inf")), stiffness
 
 
 def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = None, train=None,
@@ -184,12 +200,12 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     problem = run.problem
     summary = summarize(idata, wall_seconds=None)
     summary["parameters"] = parameter_summary(idata, problem.model)
-    summary["solver_error_rad"] = _solver_check(problem, idata)
+    summary["solver_error_rad"], summary["stiffness"] = _solver_check(problem, idata)
     if summary["solver_error_rad"] is not None and not summary["solver_error_rad"] <= SOLVER_TOL:
         logging.getLogger(__name__).warning(
             f"the fixed-step solver ({problem.substeps} substeps) is "
             f"{summary['solver_error_rad']:.2g} rad from the adaptive reference at the draw of "
-            f"highest density (tolerance {SOLVER_TOL:g}); rerun with more substeps")
+            f"highest density or the stiffest draw (tolerance {SOLVER_TOL:g}); rerun with more substeps")
     if last_layer is not None:
         summary["last_layer"] = last_layer
     of_u = [t.axis for t in network_terms(problem.model) if t.inputs == "u"]

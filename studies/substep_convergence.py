@@ -11,7 +11,8 @@ rest, and report
   stiff reference :func:`heli_uq.simulation.reference_solve` (diffrax Kvaerno5, rtol = atol
   = 1e-10 unless ``--rtol``), i.e. :func:`heli_uq.simulation.reference.solver_error`, for
   1, 2, 4, 8 and 16 RK4 substeps per sample and at ``default_substeps(model, values, dt,
-  margin=2.0, thetas=reference pitch)`` (the margin the MAP stage uses);
+  margin=2.0, thetas=reference pitch)`` (the margin the MAP stage used until 2026-11-28;
+  it now covers the stiffness of the Laplace draws);
 * the wall time [ms] of one jitted forward solve at each substep count (median of
   ``--repeats`` calls after compilation) and of the reference solve [s].
 

@@ -533,6 +533,38 @@ def test_the_pace_leaves_out_the_settling_iterations():
         paces.append((it, meter.update(it, seconds)))
     measured = [(it, p) for it, p in paces if p is not None]
     assert measured[0] == (first + PACE_SKIP + PACE_ITERATIONS, 0.5), measured[:2]
+    # later the pace is the latest one: after PACE_ITERATIONS at 3 s it is 3 s
+    for it in range(paces[-1][0] + 1, paces[-1][0] + 1 + PACE_ITERATIONS):
+        seconds += 3.0
+        latest = meter.update(it, seconds)
+    assert latest == pytest.approx(3.0)
+
+
+def test_a_kept_warmup_that_falls_behind_is_cut_later(synthetic_problem, synthetic_start, tmp_path,
+                                                      monkeypatch):  # fmt: skip
+    """A warm-up kept at the first pace is sized again when, at its latest pace, it would no
+    longer leave time for the fewest draws (here the first decision is forced to keep it and
+    the limit has already passed)."""
+    from heli_uq.inference import nuts, warmup_limit
+
+    monkeypatch.setattr(nuts, "BLOCK_SECONDS", 1e-9)
+    monkeypatch.setattr(nuts, "MIN_DRAWS_AT_LIMIT", 7)
+    monkeypatch.setattr(warmup_limit, "PACE_SKIP", 2)
+    monkeypatch.setattr(warmup_limit, "PACE_ITERATIONS", 3)
+    monkeypatch.setattr(warmup_limit, "MIN_WARMUP_AT_LIMIT", 8)
+    calls, real = [], warmup_limit.sized_warmup
+
+    def first_keeps(warmup, draws, done, *args):
+        calls.append(done)
+        return None if len(calls) == 1 else real(warmup, draws, done, *args)
+
+    monkeypatch.setattr(warmup_limit, "sized_warmup", first_keeps)
+    run = nuts.run_nuts(synthetic_problem, tmp_path / "late", time_limit=0.0, chains=2, warmup=40,
+                        draws=30, chunk=10, seed=3, progress=False, start=synthetic_start)  # fmt: skip
+    first = nuts.FIRST_BLOCK + 2 + 3
+    assert calls == [first, first + 1], calls
+    assert run.info["warmup_cut"]["discarded_iterations"] == first + 1
+    assert (run.info["warmup"], run.info["draws"]) == (8, 7), run.info
 
 
 @pytest.mark.parametrize(("pace", "left", "draws", "expected"), [
@@ -550,6 +582,8 @@ def test_sized_warmup_shares_the_time_left_as_asked(pace, left, draws, expected)
     assert MIN_WARMUP_AT_LIMIT == 150
     assert sized_warmup(1000, draws, 12, pace, left, restart_seconds=20.0, min_draws=100) == expected
     assert sized_warmup(MIN_WARMUP_AT_LIMIT, 1000, 12, 1.0, 0.0, 20.0, 100) is None  # never cut below it
+    # 50 iterations left of the requested warm-up: starting again with 150 costs more
+    assert sized_warmup(1000, 1000, 950, 1.0, 60.0, 20.0, 100) is None
 
 
 #: An interrupt is honoured within this many seconds (the issue's requirement).

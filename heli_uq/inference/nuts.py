@@ -295,7 +295,7 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     # Size the warm-up to the time limit once, in a fresh run, at the pace measured after
     # the first block (compiling) and the first iterations (warmup_limit.PaceMeter).
     sizing = time_limit is not None and it == 0 and not records and not warm_record
-    meter = warmup_limit.PaceMeter(FIRST_BLOCK)
+    meter, kept_at = warmup_limit.PaceMeter(FIRST_BLOCK), None
     first_block_seconds = 0.0
     total = warmup + draws
     bar = Progress(progress)
@@ -316,11 +316,14 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
                 pending.append(tuple(np.asarray(o)[:, :n] for o in out))
             it += n
             pace = meter.update(it, warm_seconds) if sizing and it < warmup else None
-            if pace is not None:
-                sizing, n_min = False, min(draws, MIN_DRAWS_AT_LIMIT)
-                left = time_limit - (time.perf_counter() - t_start)
+            n_min = min(draws, MIN_DRAWS_AT_LIMIT)
+            left = None if pace is None else time_limit - (time.perf_counter() - t_start)
+            # decided at the first pace, then again only if the kept warm-up falls behind
+            if pace is not None and not (kept_at is not None and pace * (warmup - it + n_min) <= left):
+                kept_at = it
                 cut = warmup_limit.sized_warmup(warmup, draws, it, pace, left, first_block_seconds, n_min)
                 if cut is not None:
+                    sizing = False
                     # what a resume needs (the requested length is in the manifest)
                     info["warmup_cut"] = {"used": cut, "pace_s": pace, "discarded_iterations": it}
                     checkpoint.update_start(info)

@@ -4,13 +4,17 @@ A run with a ``time_limit`` stops *sampling* when the limit passes, but a warm-u
 be stopped part way: numpyro fixes its adaptation windows from its length.  On a stiff
 model a 1000-iteration warm-up with dense mass-matrix adaptation alone can take longer
 than the whole limit (43 min of a 60 min discovery budget on a yaw friction record).  So
-the run times its warm-up iterations (:class:`PaceMeter`), and when the requested warm-up and the fewest
-draws it keeps would not fit in the time left, it starts the warm-up again from the
-chains' current positions with fewer iterations that do, adapting the step size only:
+the run times its warm-up iterations (:class:`PaceMeter`), and when the requested run
+would not fit in the time left, it starts the warm-up again from the chains' current
+positions with fewer iterations, adapting the step size only (decided when the pace is
+first measured, and again whenever a kept warm-up, at its latest pace, would no longer
+leave time for the fewest draws: dense mass-matrix adaptation can slow the later
+warm-up):
 the metric stays the level-scaled Laplace covariance (a dense estimate from a few dozen
 draws is worse than that metric; the quick discovery refit samples stiff friction
 models with it after 150 iterations).  The iterations that fit are shared between warm-up
-and draws in the requested proportion.
+and draws in the requested proportion, when that gives the draws enough more
+(:func:`sized_warmup`).
 """
 
 from __future__ import annotations
@@ -33,23 +37,27 @@ MIN_WARMUP_AT_LIMIT = 150
 
 
 class PaceMeter:
-    """Wall seconds per warm-up iteration, timed over :data:`PACE_ITERATIONS` iterations
-    from iteration ``first + PACE_SKIP`` on (``first``: the iterations of the compiling
-    block)."""
+    """Wall seconds per warm-up iteration over the latest :data:`PACE_ITERATIONS` or more
+    iterations, from iteration ``first + PACE_SKIP`` on (``first``: the iterations of the
+    compiling block)."""
 
     def __init__(self, first: int):
         self.first = first
-        self.mark: tuple[int, float] | None = None
+        self.marks: list[tuple[int, float]] = []
 
     def update(self, iterations: int, seconds: float) -> float | None:
         """Record the warm-up's progress after a block (``iterations`` made, ``seconds`` of
-        wall time so far); returns the pace once enough iterations are timed, else None."""
-        if self.mark is None:
-            if iterations >= self.first + PACE_SKIP:
-                self.mark = (iterations, seconds)
+        wall time so far); returns the pace over the shortest span of at least
+        :data:`PACE_ITERATIONS` that ends here, or None while fewer are timed."""
+        if iterations < self.first + PACE_SKIP:
             return None
-        timed = iterations - self.mark[0]
-        return (seconds - self.mark[1]) / timed if timed >= PACE_ITERATIONS else None
+        self.marks.append((iterations, seconds))
+        start = [m for m in self.marks if iterations - m[0] >= PACE_ITERATIONS]
+        if not start:
+            return None
+        it0, s0 = start[-1]
+        self.marks = self.marks[self.marks.index(start[-1]):]
+        return (seconds - s0) / (iterations - it0)
 
 
 #: A cut must give at least this many times the draws the uncut run would make in the
@@ -68,7 +76,8 @@ def sized_warmup(warmup: int, draws: int, done: int, pace: float, seconds_left: 
     more, and every iteration it does not take is a draw.  The warm-up keeps at least
     :data:`MIN_WARMUP_AT_LIMIT` and leaves at least ``min_draws`` when both fit.  The
     requested warm-up is kept if the uncut run still makes ``min_draws`` and the cut would
-    not give :data:`DRAW_GAIN` times its draws.  (Until 2026-11-28 it was kept whenever
+    not give :data:`DRAW_GAIN` times its draws, or if the cut warm-up is no shorter than
+    the rest of the requested one.  (Until 2026-11-28 it was kept whenever
     the uncut run made ``min_draws``: on the rig record a 5 min run then spent 1000
     warm-up iterations and kept 108 draws per chain, bulk ESS 141.)
 
@@ -103,4 +112,4 @@ def sized_warmup(warmup: int, draws: int, done: int, pace: float, seconds_left: 
     cut = int(min(max(share, MIN_WARMUP_AT_LIMIT), warmup - 1))
     if uncut >= min_draws and fits - cut < DRAW_GAIN * uncut:
         return None
-    return cut
+    return cut if cut < warmup - done else None  # else finishing costs less than starting again

@@ -292,10 +292,11 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         w0 = initial_draws(log_density, chains, smap.x_map.size, rng, on_failure="map")
         keys = jax.random.split(jax.random.PRNGKey(seed), chains)
         state, it = init(keys, jnp.asarray(w0)), 0
-    # Size the warm-up to the time limit once, in a fresh run, at the pace measured after
-    # the first block (compiling) and the first iterations (warmup_limit.PaceMeter).
+    # Size the warm-up to the time limit in a fresh run, at the pace measured after the
+    # first block (compiling) and the first iterations (warmup_limit.PaceMeter), and again
+    # if a kept warm-up falls behind; at most one cut.
     sizing = time_limit is not None and it == 0 and not records and not warm_record
-    meter, kept_at = warmup_limit.PaceMeter(FIRST_BLOCK), None
+    meter, decided = warmup_limit.PaceMeter(FIRST_BLOCK), False
     first_block_seconds = 0.0
     total = warmup + draws
     bar = Progress(progress)
@@ -318,9 +319,8 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
             pace = meter.update(it, warm_seconds) if sizing and it < warmup else None
             n_min = min(draws, MIN_DRAWS_AT_LIMIT)
             left = None if pace is None else time_limit - (time.perf_counter() - t_start)
-            # decided at the first pace, then again only if the kept warm-up falls behind
-            if pace is not None and not (kept_at is not None and pace * (warmup - it + n_min) <= left):
-                kept_at = it
+            if pace is not None and not (decided and pace * (warmup - it + n_min) <= left):
+                decided = True
                 cut = warmup_limit.sized_warmup(warmup, draws, it, pace, left, first_block_seconds, n_min)
                 if cut is not None:
                     sizing = False

@@ -482,10 +482,11 @@ def test_the_refit_of_a_split_run_starts_from_the_candidates_map_alone(monkeypat
     assert seen[-1][-1] is True
 
 
-def test_the_full_budget_gives_its_nuts_runs_the_time_its_target_leaves():
+def test_the_budgets_give_their_nuts_runs_the_time_their_targets_leave():
     """The full budget's 60 min target: a run 10 min in leaves its refit 50 min less the
     time the outputs need (a share of it to the base model's posterior when both are
-    sampled, less than the refit's); past the target, none; the quick budget has no target."""
+    sampled, less than the refit's); past the target, none.  The quick budget's 10 min
+    target: a run 6 min in leaves its refit 4 min less the outputs' time."""
     import time
 
     from heli_uq.discovery import report
@@ -500,4 +501,6 @@ def test_the_full_budget_gives_its_nuts_runs_the_time_its_target_leaves():
     assert 0.0 < share < 0.5
     assert report._time_left(full, now - 600.0, share) == pytest.approx(left * share, abs=2.5)
     assert report._time_left(full, now - 7200.0) == 0.0
-    assert report._time_left(BUDGETS["quick"], now - 600.0) is None
+    quick = BUDGETS["quick"]
+    expected = 60.0 * quick.minutes - 360.0 - report.OUTPUT_SECONDS
+    assert quick.minutes == 10.0 and expected - 5.0 < report._time_left(quick, now - 360.0) <= expected

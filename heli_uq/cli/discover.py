@@ -62,8 +62,9 @@ def add_parser(subparsers):
         ),
         epilog=(
             "budgets: quick (2 MAP starts per candidate, NUTS 2 x (150 + 350) in the Laplace\n"
-            "  metric); full (4 starts, NUTS 4 x (1000 + 1000) with a dense mass matrix adapted,\n"
-            "  NUTS also for the base model)\n\n"
+            "  metric; 10 min target); full (4 starts, NUTS 4 x (1000 + 1000) with a dense mass\n"
+            "  matrix adapted, NUTS also for the base model; 60 min target). A NUTS run still\n"
+            "  sampling at the target stops with the draws made (at least 100 per chain)\n\n"
             "examples:\n"
             "  heli-uq discover experimental --train 0:91 --test 91:131 --max-effects 2 --out out/disc\n"
             "  heli-uq discover rec.csv --budget full --scheduler tcp://host:8786 --out out/rec\n\n"

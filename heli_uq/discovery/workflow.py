@@ -93,8 +93,11 @@ class Budget:
     be exceeded stops with the draws made (at least
     :data:`~heli_uq.inference.nuts.MIN_DRAWS_AT_LIMIT` per chain), and one whose warm-up
     would leave no time for those is cut (:mod:`heli_uq.inference.warmup_limit`); the
-    summary's health notes say so; ``None``: every draw is made (quick: a stiff friction refit's few hundred
-    draws are its interval; fewer would widen the chance of missing the truth).
+    summary's health notes say so; ``None``: every draw is made.  Quick: 10 min, which
+    only a stiff friction refit reaches (2026-11-28, pitch friction F_c = 0.005 N m on the
+    published profile, alone on the 2 cores: the candidates took 5.5 min, the refit stopped
+    at 102 of 350 draws per chain, 9.8 min in all; F_c's 95 % interval [0.0031, 0.0432]
+    against [0.0032, 0.0431] with every draw made in 14.1 min).
     """
 
     n_starts: int
@@ -112,7 +115,7 @@ class Budget:
 
 
 BUDGETS = {"quick": Budget(n_starts=2, cold_starts=0, draws=64, pair_top=3, chains=2, warmup=150,
-                           samples=350, max_tree_depth=6, adapt_mass_matrix=False),
+                           samples=350, max_tree_depth=6, adapt_mass_matrix=False, minutes=10.0),
            "full": Budget(n_starts=4, cold_starts=1, draws=200, pair_top=4, chains=4, warmup=1000,
                           samples=1000, nuts_before=True, newton_steps=10, minutes=60.0)}
 

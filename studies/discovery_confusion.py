@@ -139,7 +139,8 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
     t0 = time.perf_counter()
     keep = args.keep and pathlib.Path(args.keep) / f"{case.replace(':', '_')}_{inputs}_{seed}"
     with contextlib.nullcontext(keep) if keep else tempfile.TemporaryDirectory() as tmp:
-        res = discover(rec, tmp, train=(0.0, split), test=(split, args.seconds), budget=args.budget,
+        windows = {} if args.no_split else {"train": (0.0, split), "test": (split, args.seconds)}
+        res = discover(rec, tmp, **windows, budget=args.budget,
                        seed=seed, scheduler=args.scheduler, candidates=args.candidates,
                        max_effects=max(1, len(model.effects)))  # fmt: skip
     added = {f"{a['axis']}:{a['effect']}": a["parameters"] for a in res["added"]}
@@ -164,6 +165,7 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
             **({"hidden_omega_s": args.hidden_omega_s}
                if args.hidden_omega_s is not None else {}),
             **({"hold": list(args.hold)} if args.hold is not None else {}),
+            **({"split": False} if args.no_split else {}),
             **({"refit": refit_facts(keep / "refit" / "summary.json")} if keep else {})}  # fmt: skip
 
 
@@ -253,6 +255,10 @@ def main(argv=None) -> int:
                          "fitted term's), e.g. 0.0002 for nearly exact stick-slip")
     ap.add_argument("--hold", type=_hold, default=None, metavar="MIN:MAX",
                     help="hold time [s] of a rig_steps level (default: the package's 3-14 s)")
+    ap.add_argument("--no-split", action="store_true",
+                    help="no train/test split, as `heli-uq discover REC --out DIR` runs: the "
+                         "candidates are fitted on the first 70 %% and scored on the rest, the "
+                         "refit uses the whole record")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     ap.add_argument("--keep", default=None, metavar="DIR",
                     help="keep each record's discover outputs in DIR/CASE_INPUTS_SEED (default: "

@@ -157,6 +157,10 @@ def test_the_decision_gives_the_gap_on_both_axes():
     text = _decision(["pitch:coulomb_friction"], [], [{"score": 4305.0, "score_se": 917.0}], before, after)
     assert "on the test window RMSE pitch 0.008 -> 0.003, yaw 0.008 -> 0.008 rad" in text
     assert "90 % coverage pitch 96% -> 89%, yaw 87% -> 89%" in text
+    # without a split the gap is the whole window's (it once read "on the window window")
+    whole = _decision(["pitch:coulomb_friction"], [], [{"score": 4305.0, "score_se": 917.0}],
+                      {"window": before["test"]}, {"window": after["test"]})  # fmt: skip
+    assert "on the whole window RMSE pitch 0.008 -> 0.003" in whole
 
 
 def test_cli_cold_starts_override_the_budget(tmp_path, monkeypatch):

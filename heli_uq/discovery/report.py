@@ -229,6 +229,7 @@ def gap_warnings(before: dict, after: dict) -> list[str]:
 
 def _decision(added, rows, steps, before, after) -> str:
     w = "test" if "test" in before else "window"
+    where = "the test window" if w == "test" else "the whole window"
     if not added:
         best = next((r for r in rows if r.get("score") is not None), None)
         why = (f"; the best, {best['effect']}, scored {best['score']:+.0f} ± {best['score_se']:.0f} "
@@ -241,7 +242,7 @@ def _decision(added, rows, steps, before, after) -> str:
     worse = gap_warnings(before, after)
     warn = f" Warning: {'; '.join(worse)}." if worse else ""
     return (f"Added {names}: held-out score +{steps[0]['score']:.0f} ± {steps[0]['score_se']:.0f} nats "
-            f"over the base at the first step{tie}; on the {w} window "
+            f"over the base at the first step{tie}; on {where} "
             f"{gap_text(before[w], after[w])}.{warn}")  # fmt: skip
 
 

@@ -306,8 +306,10 @@ def test_oversized_requests_are_refused_up_front(tmp_path, capsys, argv, needle)
     (["--time-limit", "-5"], "--time-limit: expected minutes > 0"),
     (["--time-limit", "nan"], "--time-limit: expected minutes > 0"),
     (["--time-limit", "5", "--sampler", "emcee"], "--time-limit: NUTS only"),
+    (["--max-draws", "5"], "--max-draws: NUTS only and more than --draws"),
+    (["--max-draws", "500", "--sampler", "laplace"], "--max-draws: NUTS only"),
 ])  # fmt: skip
-def test_a_bad_time_limit_is_one_line(tmp_path, capsys, extra, needle):
+def test_a_bad_time_limit_or_max_draws_is_one_line(tmp_path, capsys, extra, needle):
     from heli_uq.cli import main
 
     rec = tmp_path / "rec.csv"
@@ -520,6 +522,55 @@ def test_a_warmup_past_the_time_limit_is_cut_and_a_resume_keeps_the_cut(syntheti
     assert resumed.info["step_size"] == limited.info["step_size"]
     for k in limited.samples:
         np.testing.assert_array_equal(limited.samples[k], resumed.samples[k][:, :7], err_msg=k)
+
+
+def test_a_run_goes_on_past_its_draws_while_they_have_not_converged(synthetic_problem, synthetic_start,
+                                                                    tmp_path):  # fmt: skip
+    """With ``max_draws`` and a convergence check, the draws are the uninterrupted longer
+    run's: sampling goes on a chunk at a time while the check fails, stops where it first
+    passes (or at ``max_draws``), and the run and its health notes say how many were asked
+    for.  A check that passes at once changes nothing."""
+    from heli_uq.inference import nuts
+    from heli_uq.output.health import check_health
+
+    kw = dict(chains=2, warmup=20, chunk=10, seed=3, progress=False, start=synthetic_start)
+    seen = []
+
+    def converged_at_35(samples):  # passes once 35 draws per chain are made
+        seen.append(samples["sigma"].shape[:2])
+        return samples["sigma"].shape[1] >= 35
+
+    longer = nuts.run_nuts(synthetic_problem, tmp_path / "long", draws=40, **kw)
+    run = nuts.run_nuts(synthetic_problem, tmp_path / "ext", draws=15, max_draws=60,
+                        converged=converged_at_35, **kw)  # fmt: skip
+    assert seen == [(2, 15), (2, 25), (2, 35)], seen
+    assert run.info["draws"] == 35 and run.info["draws_extended_from"] == 15, run.info
+    for k in longer.samples:
+        np.testing.assert_array_equal(longer.samples[k][:, :35], run.samples[k], err_msg=k)
+    notes = check_health({"sampler": "nuts", "chains": 2, "draws": 35, "draws_extended_from": 15})["notes"]
+    assert any("35 draws per chain where 15 were asked for" in n for n in notes), notes
+    capped = nuts.run_nuts(synthetic_problem, tmp_path / "cap", draws=15, max_draws=22,
+                           converged=lambda samples: False, **kw)  # fmt: skip
+    assert capped.info["draws"] == 22 and capped.samples["sigma"].shape[:2] == (2, 22)
+    at_once = nuts.run_nuts(synthetic_problem, tmp_path / "once", draws=15, max_draws=60,
+                            converged=lambda samples: True, **kw)  # fmt: skip
+    assert at_once.info["draws"] == 15 and "draws_extended_from" not in at_once.info
+    with pytest.raises(ParameterError, match="max_draws"):
+        nuts.run_nuts(synthetic_problem, tmp_path / "bad", draws=15, max_draws=60, **kw)
+
+
+def test_draws_converged_judges_rhat_and_ess():
+    """Independent draws from one distribution pass; chains that disagree fail R-hat; too
+    few draws fail ESS; the sampling coordinates ``z`` are not judged."""
+    from heli_uq.output.diagnostics import draws_converged
+
+    rng = np.random.default_rng(0)
+    good = {"a": rng.normal(size=(4, 500)), "x0": rng.normal(size=(4, 500, 2))}
+    assert draws_converged(good)
+    apart = {"a": rng.normal(size=(4, 500)) + np.arange(4)[:, None]}
+    assert not draws_converged(apart)
+    assert not draws_converged({"a": rng.normal(size=(2, 60))})  # ESS ~ 120 < 400
+    assert draws_converged({**good, "z": np.zeros((4, 500, 3)) + np.arange(4)[:, None, None]})
 
 
 def test_the_pace_leaves_out_the_settling_iterations():

@@ -34,6 +34,9 @@ def cmd_sample(args) -> int:
         raise ParameterError(f"--time-limit: expected minutes > 0, found {args.time_limit:g}")
     if args.time_limit is not None and args.sampler != "nuts":
         raise ParameterError(f"--time-limit: NUTS only, found --sampler {args.sampler}")
+    if args.max_draws is not None and (args.sampler != "nuts" or not args.max_draws > args.draws):
+        raise ParameterError(f"--max-draws: NUTS only and more than --draws ({args.draws}), found "
+                             f"{args.max_draws} with --sampler {args.sampler}")  # fmt: skip
     target_accept = TARGET_ACCEPT if args.target_accept is None else args.target_accept
     if args.sampler == "nuts":
         # One XLA host device per chain, so numpyro runs the chains in parallel; only
@@ -58,6 +61,7 @@ def cmd_sample(args) -> int:
         target_accept=target_accept, network_posterior=args.nn_posterior or "full",
         max_tree_depth=args.max_tree_depth, guesses=guesses,
         time_limit=None if args.time_limit is None else 60.0 * args.time_limit,
+        max_draws=args.max_draws,
     )  # fmt: skip
     keys = ("rhat_max", "ess_bulk_min", "ess_tail_min", "divergences", "rmse", "coverage90",
             "rmse_test", "coverage90_test", "solver_error_rad", "wall_s", "rhat_max_network_torque",
@@ -161,6 +165,9 @@ def add_parser(subparsers):
                    help="NUTS: stop sampling after MIN minutes with the draws made (at least"
                         " 100 per chain; a warm-up that would leave no time for them is cut and"
                         " adapts the step size only); --resume later continues to --draws")
+    p.add_argument("--max-draws", type=int, default=None, metavar="N",
+                   help="NUTS: after --draws, go on a chunk at a time while R-hat or ESS fail"
+                        " their checks, up to N draws per chain (and --time-limit)")
     p.add_argument("--walkers", type=int, default=None,
                    help="emcee walkers per ensemble (default: 2 * dim + 2)")
     p.add_argument("--error", choices=["iid", "ar1"], default="ar1",

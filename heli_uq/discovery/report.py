@@ -75,7 +75,8 @@ def _posterior(record, model, train, test, out, cost, seed, guess, time_limit=No
                                       draws=cost.samples, seed=seed, progress=False,
                                       max_tree_depth=cost.max_tree_depth, n_starts=starts,
                                       adapt_mass_matrix=cost.adapt_mass_matrix,
-                                      guesses=(guess,), time_limit=time_limit)  # fmt: skip
+                                      guesses=(guess,), time_limit=time_limit,
+                                      max_draws=cost.max_samples)  # fmt: skip
     pp = idata.posterior_predictive
     y_sim = np.asarray(pp["y_sim"]).reshape((-1,) + pp["y_sim"].shape[2:])
     y_pred = np.asarray(pp["y_pred"]).reshape((-1,) + pp["y_pred"].shape[2:])

@@ -98,6 +98,11 @@ class Budget:
     published profile, alone on the 2 cores: the candidates took 5.5 min, the refit stopped
     at 102 of 350 draws per chain, 9.8 min in all; F_c's 95 % interval [0.0031, 0.0432]
     against [0.0032, 0.0431] with every draw made in 14.1 min).
+    ``max_samples``: the NUTS runs go on past ``samples`` draws per chain, a chunk at a
+    time, while R-hat or ESS fail their checks, up to this many (and the time target);
+    ``None``: exactly ``samples``.  Quick: 2000, since most refits end far inside the
+    target and 2 x 350 draws of a model with an initial rate on a ridge failed the ESS
+    check on every record (bulk ESS 15-399, 2026-11-28).
     """
 
     n_starts: int
@@ -112,10 +117,12 @@ class Budget:
     max_tree_depth: int = 8
     adapt_mass_matrix: bool = True
     minutes: float | None = None
+    max_samples: int | None = None
 
 
 BUDGETS = {"quick": Budget(n_starts=2, cold_starts=0, draws=64, pair_top=3, chains=2, warmup=150,
-                           samples=350, max_tree_depth=6, adapt_mass_matrix=False, minutes=10.0),
+                           samples=350, max_tree_depth=6, adapt_mass_matrix=False, minutes=10.0,
+                           max_samples=2000),
            "full": Budget(n_starts=4, cold_starts=1, draws=200, pair_top=4, chains=4, warmup=1000,
                           samples=1000, nuts_before=True, newton_steps=10, minutes=60.0)}
 

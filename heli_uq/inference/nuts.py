@@ -151,11 +151,20 @@ def _progress_text(it: int, warmup: int, draws: int, chains: int, pending: list,
             "divergences per chain " + " ".join(str(int(d)) for d in per_chain))
 
 
+def _constrained(density, records: list[dict], chains: int, draws: int | None = None) -> dict:
+    """The saved chunks' draws (the first ``draws`` per chain) as named constrained arrays of
+    shape (chains, draws, ...)."""
+    x = np.concatenate([r["x"] for r in records], axis=1)[:, :draws]
+    flat = constrain_draws(density, x.reshape(-1, x.shape[-1]))
+    return {k: v.reshape((chains, x.shape[1]) + v.shape[1:]) for k, v in flat.items()}
+
+
 def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
              draws: int = 1000, seed: int = 0, chunk: int = 250, resume: bool = False,
              progress: bool = True, max_tree_depth: int = 8,
              target_accept: float = TARGET_ACCEPT, adapt_mass_matrix: bool = True,
-             start: Start | None = None, time_limit: float | None = None) -> SamplerRun:  # fmt: skip
+             start: Start | None = None, time_limit: float | None = None,
+             max_draws: int | None = None, converged=None) -> SamplerRun:  # fmt: skip
     """NUTS in coordinates whitened by the Laplace approximation at the MAP.
 
     NUTS moves in ``w`` with ``x = x_map + L w`` (``x``: numpyro's unconstrained vector,
@@ -210,6 +219,15 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         adapted (:mod:`heli_uq.inference.warmup_limit`; ``info["warmup_requested"]``).
         Not part of the run's settings: it changes how many draws there are and how
         long the warm-up is, not the target.
+    max_draws : int, optional
+        With ``converged``: once the requested ``draws`` are made, sampling continues a
+        ``chunk`` at a time while ``converged`` says the draws so far have not, up to
+        ``max_draws`` per chain (and the time limit).  ``info["draws_extended_from"]``
+        then records the request.  Not part of the run's settings either.
+    converged : callable, optional
+        ``converged(samples) -> bool`` on the named constrained draws so far (arrays of
+        shape (chains, draws, ...)): the caller's convergence checks
+        (:func:`heli_uq.output.diagnostics.draws_converged`).
 
     Raises
     ------
@@ -227,7 +245,11 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
         raise ParameterError(f"target_accept: expected a number in (0, 1), found {target_accept!r}")
     if time_limit is not None and not time_limit >= 0:
         raise ParameterError(f"time_limit: expected seconds >= 0, found {time_limit!r}")
-    check_draws_memory(problem, chains * draws, f"draws: {chains} chains x {draws} draws")
+    if max_draws is not None and (isinstance(max_draws, bool) or int(max_draws) != max_draws
+                                  or converged is None):  # fmt: skip
+        raise ParameterError(f"max_draws: expected an integer with a convergence check, found {max_draws!r}")
+    most = max(draws, max_draws or 0)
+    check_draws_memory(problem, chains * most, f"draws: {chains} chains x {most} draws")
     t_start = time.perf_counter()
     checkpoint = Checkpoint(pathlib.Path(out_dir) / CHUNK_DIR)
     manifest = run_manifest(problem, {
@@ -274,6 +296,9 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     parallel = jax.local_device_count() >= chains and chains > 1
     init, block = chain_functions(warmup, adapt_mass_matrix)
     done = sum(r["x"].shape[1] for r in records)
+    requested_draws = draws
+    if max_draws is not None and done > draws:  # resumed after continuing past the request
+        draws = min(done, max_draws)
     warm_seconds = 0.0
     if records or warm_record:
         saved = records[-1] if records else warm_record[-1]
@@ -363,20 +388,27 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
                 if pending:
                     records.append(_save_chunk(checkpoint, len(records), pending, state, smap))
                     done, pending = done + records[-1]["x"].shape[1], []
-                info["draws_requested"], draws = draws, done
+                if done < requested_draws:
+                    info["draws_requested"] = requested_draws
+                draws = done
                 break
+            if (it == total and max_draws is not None and draws < max_draws and not flag.requested
+                    and (time_limit is None or time.perf_counter() - t_start < time_limit)
+                    and not converged(_constrained(density, records, chains))):  # fmt: skip
+                draws = min(draws + chunk, max_draws)
+                total = warmup + draws
     bar.close(_progress_text(it, warmup, draws, chains, [], records, time.perf_counter() - t_loop))
     if flag.requested:  # in the last block: every draw is saved, stop before post-processing
         raise Interrupted(f"all {draws} draws per chain saved in {checkpoint.directory}")
     method = "parallel" if parallel else "vectorized"
-    x = np.concatenate([r["x"] for r in records], axis=1)[:, :draws]
-    flat = constrain_draws(density, x.reshape(-1, x.shape[-1]))
-    samples = {k: v.reshape((chains, draws) + v.shape[1:]) for k, v in flat.items()}
+    samples = _constrained(density, records, chains, draws)
     stats = {k: np.concatenate([r["stats"][k] for r in records], axis=1)[:, :draws]
              for k in records[0]["stats"]}  # fmt: skip
     out_info = {k: v for k, v in info.items() if k not in ("x_map", "covariance")}
     if warmup != requested_warmup:
         out_info["warmup_requested"] = requested_warmup
+    if draws > requested_draws:
+        out_info["draws_extended_from"] = requested_draws
     out_info.update(sampler="nuts", chains=chains, warmup=warmup, draws=draws, seed=seed,
                     adapt_mass_matrix=adapt_mass_matrix,
                     chain_method=method, warmup_seconds=warm_seconds,

@@ -21,7 +21,8 @@ from heli_uq.output.network import is_network_weight
 from heli_uq.probability.likelihood import loss_v
 from heli_uq.simulation.physical import unphysical_draws as _unphysical
 
-__all__ = ["RHAT_MAX", "ESS_MIN", "BFMI_MIN", "convergence", "predictive_metrics", "predictive_checks",
+__all__ = ["RHAT_MAX", "ESS_MIN", "BFMI_MIN", "convergence", "draws_converged", "predictive_metrics",
+           "predictive_checks",
            "summarize",
            "unphysical_draws", "summary_table"]
 
@@ -78,7 +79,8 @@ def convergence(idata) -> dict:
                                                         if i.split("[")[0] in torques], "r_hat"].max())
     for key in ("map_seconds", "warmup_seconds", "map_decrement", "map_decrement_max", "target_accept",
                 "substeps", "wall_coordinates", "wall_sides", "max_tree_depth", "metric_factors",
-                "draws_requested", "warmup_requested", "warmup", "adapt_mass_matrix"):
+                "draws_requested", "draws_extended_from", "warmup_requested", "warmup",
+                "adapt_mass_matrix"):
         if key in info:
             out[key] = info[key]
     stats = idata.sample_stats
@@ -100,6 +102,26 @@ def convergence(idata) -> dict:
         and out.get("bfmi_min", 1.0) >= BFMI_MIN
     )  # fmt: skip
     return out
+
+
+def draws_converged(samples: dict) -> bool:
+    """R-hat and bulk and tail ESS of draws that pass :data:`RHAT_MAX` and :data:`ESS_MIN`,
+    judged on the quantities :func:`convergence` judges (every one but the sampling
+    coordinates ``z`` and the raw network weights).
+
+    Parameters
+    ----------
+    samples : dict
+        Named draws, arrays of shape (chains, draws, ...) (what NUTS has made so far:
+        :func:`heli_uq.inference.run_nuts` asks this to decide whether to go on).
+    """
+    names = [k for k in samples if k != "z" and not is_network_weight(k)]
+    posterior = az.convert_to_dataset({k: np.asarray(samples[k]) for k in names})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        summ = az.summary(posterior, kind="diagnostics")
+    return bool(summ["r_hat"].max() <= RHAT_MAX and summ["ess_bulk"].min() >= ESS_MIN
+                and summ["ess_tail"].min() >= ESS_MIN)  # fmt: skip
 
 
 def summary_table(idata):

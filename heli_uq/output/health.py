@@ -152,6 +152,10 @@ def check_health(summary: dict, *, solver_tol: float | None = None) -> dict:
     if requested is not None and summary.get("draws", requested) < requested:
         notes.append(f"stopped at its time limit after {summary['draws']} of {requested} draws per chain "
                      "(the other checks judge the draws made; a resume continues to the rest)")  # fmt: skip
+    extended = summary.get("draws_extended_from")
+    if extended is not None:
+        notes.append(f"{summary.get('draws')} draws per chain where {extended} were asked for: sampling "
+                     "went on while R-hat or ESS failed their checks")  # fmt: skip
     cut_from = summary.get("warmup_requested")
     if cut_from is not None:
         notes.append(f"its warm-up was cut from {cut_from} to {summary.get('warmup')} iterations, step size "

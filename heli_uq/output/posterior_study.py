@@ -26,7 +26,7 @@ from heli_uq.io import atomic_write_text
 from heli_uq.log import progress_log
 from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.tables import X0_NAMES
-from heli_uq.output.diagnostics import summarize, summary_table
+from heli_uq.output.diagnostics import draws_converged, summarize, summary_table
 from heli_uq.output.health import check_health
 from heli_uq.output.inference_data import save_netcdf, to_inference_data
 from heli_uq.output.last_layer import NETWORK_POSTERIORS, last_layer_setup
@@ -102,7 +102,8 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
                      draws=1000, seed=0, resume=False, progress=True, walkers=None,
                      ensembles=None, n_starts=4, adapt_mass_matrix=True,
                      target_accept=TARGET_ACCEPT, substeps=None, log=None,
-                     max_tree_depth=8, guesses=(), network_posterior="full", time_limit=None):  # fmt: skip
+                     max_tree_depth=8, guesses=(), network_posterior="full", time_limit=None,
+                     max_draws=None):  # fmt: skip
     """Run the whole posterior study and write its files; returns ``(idata, summary)``.
 
     Parameters
@@ -125,6 +126,10 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
         NUTS only: wall seconds from this call after which sampling stops with the draws
         made (at least :data:`~heli_uq.inference.nuts.MIN_DRAWS_AT_LIMIT` per chain, after
         the whole warm-up; :func:`heli_uq.inference.run_nuts`).
+    max_draws : int, optional
+        NUTS only: after ``draws``, go on a chunk at a time while R-hat or ESS fail their
+        checks (:func:`~heli_uq.output.diagnostics.draws_converged`), up to ``max_draws``
+        per chain and the time limit.
     substeps : int, optional
         RK4 substeps per sample (default: chosen from the model's stiffness).
     guesses : sequence of dict, optional
@@ -185,8 +190,8 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
         run = run_nuts(problem, out, chains=chains, warmup=warmup, draws=draws, seed=seed,
                        resume=resume, progress=progress, start=start,
                        adapt_mass_matrix=adapt_mass_matrix, target_accept=target_accept,
-                       max_tree_depth=max_tree_depth,
-                       time_limit=left)  # fmt: skip
+                       max_tree_depth=max_tree_depth, time_limit=left, max_draws=max_draws,
+                       converged=draws_converged if max_draws is not None else None)  # fmt: skip
     elif sampler == "laplace":
         if resume:
             raise ParameterError("--resume: the Laplace sampler saves nothing to resume; run it again")

@@ -106,8 +106,9 @@ def convergence(idata) -> dict:
 
 def draws_converged(samples: dict) -> bool:
     """R-hat and bulk and tail ESS of draws that pass :data:`RHAT_MAX` and :data:`ESS_MIN`,
-    judged on the quantities :func:`convergence` judges (every one but the sampling
-    coordinates ``z`` and the raw network weights).
+    judged on the sampled quantities :func:`convergence` judges (every one but the sampling
+    coordinates ``z`` and the raw network weights; a network's output torque, which
+    :func:`convergence` also judges, is computed only afterwards).
 
     Parameters
     ----------

@@ -50,7 +50,7 @@ def _record_for_run(spec: str, out: Path):
 
 def _check_posterior_size(record, model, args) -> None:
     """Refuse draws that cannot fit in memory before any stage runs."""
-    from heli_uq.inference.nuts import check_draws_memory
+    from heli_uq.inference.draw_memory import check_draws_memory
     from heli_uq.probability.problem import make_problem
 
     problem = make_problem(record, model=model, error="iid")

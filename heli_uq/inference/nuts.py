@@ -36,15 +36,15 @@ from heli_uq.errors import ParameterError
 from heli_uq.inference import warmup_limit
 from heli_uq.inference.checkpoint import Checkpoint
 from heli_uq.inference.density import constrain_draws, coordinate_names, log_density_setup
+from heli_uq.inference.draw_memory import check_draws_memory
 from heli_uq.inference.interrupt import Interrupted, Progress, deferred_interrupt
 from heli_uq.inference.level_scale import level_scaled_covariance
 from heli_uq.inference.manifest import run_manifest
 from heli_uq.inference.start import Start, initial_draws, prepare_start
 from heli_uq.inference.whiten import SamplerMap, choose_walls
-from heli_uq.io import require_memory
 from heli_uq.probability.problem import Problem
 
-__all__ = ["SamplerRun", "run_nuts", "TARGET_ACCEPT", "check_draws_memory", "MIN_DRAWS_AT_LIMIT"]
+__all__ = ["SamplerRun", "run_nuts", "TARGET_ACCEPT", "MIN_DRAWS_AT_LIMIT"]
 
 NUTS_EXTRA_FIELDS = ("diverging", "num_steps", "energy", "accept_prob", "potential_energy")
 #: Default target acceptance of the step-size adaptation.  On the full rig record
@@ -78,26 +78,6 @@ class SamplerRun:
     stats: dict
     info: dict
     problem: Problem
-
-
-#: Copies of every kept draw held at once (sampler coordinates, whitened ones, constrained
-#: sites, the InferenceData), each of ``dim + DRAW_EXTRA_VALUES`` float64 values.
-DRAW_COPIES = 4
-DRAW_EXTRA_VALUES = 16
-
-
-def check_draws_memory(problem: Problem, n_draws: int, what: str) -> None:
-    """Refuse up front ``n_draws`` kept draws (all chains) that would not fit in memory.
-
-    ``what`` names the request, starting with the argument (``"draws: 4 chains x 1e9"``).
-
-    Raises
-    ------
-    ParameterError
-        With the memory the draws would need.
-    """
-    per_draw = DRAW_COPIES * 8 * (problem.coords.dim + DRAW_EXTRA_VALUES)
-    require_memory(float(n_draws) * per_draw, what, "ask for fewer draws or chains")
 
 
 def _start_info(start: Start) -> dict:
@@ -152,8 +132,7 @@ def _progress_text(it: int, warmup: int, draws: int, chains: int, pending: list,
 
 
 def _constrained(density, records: list[dict], chains: int, draws: int | None = None) -> dict:
-    """The saved chunks' draws (the first ``draws`` per chain) as named constrained arrays of
-    shape (chains, draws, ...)."""
+    """The saved chunks' first ``draws`` per chain, named and constrained: (chains, draws, ...)."""
     x = np.concatenate([r["x"] for r in records], axis=1)[:, :draws]
     flat = constrain_draws(density, x.reshape(-1, x.shape[-1]))
     return {k: v.reshape((chains, x.shape[1]) + v.shape[1:]) for k, v in flat.items()}

@@ -21,7 +21,7 @@ import numpy as np
 from heli_uq.data.record import Experiment
 from heli_uq.errors import ParameterError
 from heli_uq.inference import SAMPLERS, TARGET_ACCEPT, prepare_start, run_emcee, run_laplace, run_nuts
-from heli_uq.inference.nuts import check_draws_memory
+from heli_uq.inference.draw_memory import check_draws_memory
 from heli_uq.io import atomic_write_text
 from heli_uq.log import progress_log
 from heli_uq.model.heli_model import HeliModel

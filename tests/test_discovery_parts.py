@@ -2,6 +2,7 @@
 the implied torque, effect features, the pysindy ranking and the task executor."""
 
 import dataclasses
+import itertools
 import json
 
 import numpy as np
@@ -405,6 +406,45 @@ def test_tied_candidates_are_named_and_the_fitting_window_breaks_the_tie():
     for r in rows:
         r.pop("tied", None), r.pop("chosen_by", None)
     assert choose(rows, results, n_scored, n_fit)["effect"] == "yaw:x"
+
+
+def test_the_pairs_hold_each_best_fitting_single_with_every_supported_other():
+    """The single that fits 5th best is paired with the 2 best (the record of
+    2026-11-28 whose dead band fitted 2nd and drag 5th), each pair once; the best
+    held-out single joins the top ones; a single the fitting window does not support by
+    more than its BIC penalty, or a failed one, is not paired with the best."""
+    from heli_uq.discovery.decide import pairs_to_fit
+
+    n_fit = 9000
+    bic = 0.5 * np.log(n_fit)  # per parameter [nats]
+    current = {"map_value": 0.0, "map": {"K": 0.1}}
+    fit_order = ["yaw:thrust", "pitch:deadband", "yaw:offset", "yaw:spring", "yaw:drag", "pitch:offset",
+                 "pitch:friction"]  # fmt: skip
+    gain = [7000.0, 6000.0, 5000.0, 2.5 * bic, 1.5 * bic, 100.0, 0.9 * bic]  # nats on the fitting window
+    n_params = [1, 1, 1, 2, 1, 1, 1]
+    rows, results = [], {}
+    for i, e in enumerate(fit_order):
+        rows.append({"effect": e, "score": -float(i), "fit": {"V": 1e-4 * (1 + i)}})
+        results[e] = {"map_value": -gain[i], "map": {"K": 0.1, **{f"p{j}": 0.0 for j in range(n_params[i])}}}
+    rows[5]["score"] = 10.0  # best held out, poor fit
+    rows.sort(key=lambda r: -r["score"])
+    rows.append({"effect": "yaw:friction", "score": None, "error": "diverged"})
+    pairs = pairs_to_fit(rows, 3, 2, results, current, n_fit)
+    as_sets = [frozenset(p) for p in pairs]
+    assert len(set(as_sets)) == len(pairs)
+    assert frozenset(("pitch:deadband", "yaw:drag")) in as_sets
+    # top 3 + best held out: 6 pairs; the 2 best add the supported others not yet paired
+    among_top = {frozenset(p) for p in itertools.combinations(fit_order[:3] + ["pitch:offset"], 2)}
+    anchored = {frozenset((a, b)) for a in fit_order[:2] for b in ("yaw:spring", "yaw:drag")}
+    assert set(as_sets) == among_top | anchored
+    assert not any("yaw:friction" in p or "pitch:friction" in p for p in pairs)
+    # without anchors the weak member is missed (the search of before)
+    assert frozenset(("pitch:deadband", "yaw:drag")) not in {
+        frozenset(p) for p in pairs_to_fit(rows, 3, 0, results, current, n_fit)}
+    # a spring whose 2 parameters gain less than their penalty is not supported
+    results["yaw:spring"]["map_value"] = -1.5 * bic
+    assert frozenset(("yaw:thrust", "yaw:spring")) not in {
+        frozenset(p) for p in pairs_to_fit(rows, 3, 2, results, current, n_fit)}
 
 
 def test_a_much_better_candidate_restarts_the_current_model_from_its_values():

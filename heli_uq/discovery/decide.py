@@ -11,11 +11,13 @@ beat the best single by the same rule.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from heli_uq.discovery.score import compare, passes
 
-__all__ = ["rank", "pair_members", "choose"]
+__all__ = ["rank", "pairs_to_fit", "choose"]
 
 
 def rank(results: dict, reference: dict, n_scored: int) -> list[dict]:
@@ -35,16 +37,38 @@ def rank(results: dict, reference: dict, n_scored: int) -> list[dict]:
     return rows
 
 
-def pair_members(rows: list[dict], n: int) -> list[str]:
-    """Singles to pair: the ``n`` that fit the fitting window best (lowest V of the mean
-    simulation; an effect can help in-sample and extrapolate badly alone, yet be half of
-    a good pair, as friction on the rig's yaw) and the best by held-out score."""
+def pairs_to_fit(rows: list[dict], top: int, anchors: int, results: dict, current: dict,
+                 n_fit: int) -> list[tuple[str, str]]:
+    """Pairs of singles to fit, each once, in a fixed order.
+
+    Every pair among the ``top`` singles that fit the fitting window best (lowest V of the
+    mean simulation) and the best single by held-out score; and each of the ``anchors``
+    best-fitting singles with every other single the fitting window supports over the
+    ``current`` model (:func:`_training_support`: its log posterior at the MAP gains more
+    than the BIC penalty of its parameters; ``results`` holds the singles' fits).  A good
+    pair can hold a member that is weak alone: an effect can help in-sample and
+    extrapolate badly alone (friction on the rig's yaw), or explain only part of the gap
+    (a synthetic record hiding yaw drag and a pitch dead band: the dead band fitted 2nd
+    best alone, the drag 5th of 12, and the pairs among the top 3 missed it, 2026-11-28).
+    A single the fitting window does not support (a pitch effect on a record whose gap is
+    yaw) is not worth a pair fit of its own.  Failed singles are never paired.
+    """
     ok = [r for r in rows if r["score"] is not None]
-    by_fit = sorted(ok, key=lambda r: r["fit"]["V"])[:n]
-    members = [r["effect"] for r in by_fit]
+    by_fit = [r["effect"] for r in sorted(ok, key=lambda r: r["fit"]["V"])]
+    members = by_fit[:top]
     if ok and ok[0]["effect"] not in members:
         members.append(ok[0]["effect"])
-    return members
+    pairs = list(itertools.combinations(members, 2))
+    floor = _training_support(current, n_fit)
+    supported = [e for e in by_fit if _training_support(results[e], n_fit) > floor]
+    for a in by_fit[:anchors]:
+        pairs += [(a, b) for b in supported if b != a]
+    seen, out = set(), []
+    for a, b in pairs:
+        if frozenset((a, b)) not in seen:
+            seen.add(frozenset((a, b)))
+            out.append((a, b))
+    return out
 
 
 def _training_support(result: dict, n_fit: int) -> float:

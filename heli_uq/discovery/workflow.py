@@ -16,9 +16,11 @@ Steps (the module of each in parentheses):
    model) is added to the current model, fitted and scored on held-out blocks (its
    predictive: the Laplace draws resampled by importance weights, or the plug-in at the
    MAP where Pareto k rejects them); with two
-   or more effects still allowed, pairs too, of the :attr:`Budget.pair_top` singles that
-   fit the fitting window best and the best single by held-out score (single effects can
-   be weak alone and strong together, as friction and a torque offset on the rig's yaw).
+   or more effects still allowed, pairs too: of the :attr:`Budget.pair_top` singles that
+   fit the fitting window best and the best single by held-out score, and of each of the
+   :attr:`Budget.pair_anchors` best with every other single
+   (:func:`~heli_uq.discovery.decide.pairs_to_fit`; single effects can be weak alone and
+   strong together, as friction and a torque offset on the rig's yaw).
    A candidate nests the current model, so when one fits the fitting window much
    better (:data:`RESTART_NATS`), the current model is refitted once from its values;
    if that finds a better basin (a stiff hidden effect can trap the base fit: a pitch
@@ -45,7 +47,6 @@ Steps (the module of each in parentheses):
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import pathlib
 import time
 
@@ -53,7 +54,7 @@ import numpy as np
 
 from heli_uq.data import Experiment
 from heli_uq.discovery.candidates import FitTask, fitted_predictive, off_start, score_fitted, warm_starts
-from heli_uq.discovery.decide import choose, pair_members, rank
+from heli_uq.discovery.decide import choose, pairs_to_fit, rank
 from heli_uq.discovery.implied import base_features, effect_features, implied_torque
 from heli_uq.discovery.locate import locate
 from heli_uq.discovery.report import write_outputs
@@ -83,7 +84,9 @@ class Budget:
     ``n_starts``: MAP starts of the base model after the one from the shipped rig fit;
     ``cold_starts``: starts of a candidate beyond its warm ones
     (:func:`~heli_uq.discovery.candidates.warm_starts`); ``draws``: Laplace draws per
-    candidate; ``pair_top``: how many of the best singles are paired; ``chains, warmup,
+    candidate; ``pair_top``: how many of the best singles are paired with each other;
+    ``pair_anchors``: how many of the best are paired with every other single
+    (:func:`~heli_uq.discovery.decide.pairs_to_fit`); ``chains, warmup,
     samples``: the NUTS refit; ``nuts_before``: the base model gets a NUTS posterior too
     (else its Laplace approximation is *before*); ``newton_steps``: of each MAP polish;
     ``max_tree_depth``: of the NUTS refit (a stiff friction model can otherwise spend 2^8
@@ -118,13 +121,15 @@ class Budget:
     adapt_mass_matrix: bool = True
     minutes: float | None = None
     max_samples: int | None = None
+    pair_anchors: int = 0
 
 
 BUDGETS = {"quick": Budget(n_starts=2, cold_starts=0, draws=64, pair_top=3, chains=2, warmup=150,
                            samples=350, max_tree_depth=6, adapt_mass_matrix=False, minutes=10.0,
-                           max_samples=2000),
+                           max_samples=2000, pair_anchors=2),
            "full": Budget(n_starts=4, cold_starts=1, draws=200, pair_top=4, chains=4, warmup=1000,
-                          samples=1000, nuts_before=True, newton_steps=10, minutes=60.0)}
+                          samples=1000, nuts_before=True, newton_steps=10, minutes=60.0,
+                          pair_anchors=2)}
 
 
 def _windows(record: Experiment, window, train, test):
@@ -315,10 +320,10 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
                     continue
         rows = rank(results, current_res, n_scored)
         room = max_effects - (len(current) - len(base_effects))
-        if room >= 2 and cost.pair_top >= 2:
-            top = pair_members(rows, cost.pair_top)
+        if room >= 2 and (cost.pair_top >= 2 or cost.pair_anchors >= 1):
             pairs = {}
-            for a, b in itertools.combinations(top, 2):
+            for a, b in pairs_to_fit(rows, cost.pair_top, cost.pair_anchors, results, current_res,
+                                     n_fit):
                 ea, eb = a.split("+")[-1], b.split("+")[-1]
                 effects = current + [ea, eb]
                 guess = {**results[a]["map"], **{k: v for k, v in results[b]["map"].items()

@@ -163,6 +163,23 @@ def test_the_decision_gives_the_gap_on_both_axes():
     assert "on the whole window RMSE pitch 0.008 -> 0.003" in whole
 
 
+def test_none_says_when_the_best_lacks_the_fitting_window_s_support():
+    """The rig record's best candidate (a yaw spring fitted to k = 3e-5 N m/rad) passed the
+    held-out margin without the fitting window's support; "none" says so, with the deficit,
+    and a candidate below the margin gets the plain sentence."""
+    from heli_uq.discovery.report import _decision
+
+    gap = {"test": _gap_record(0.02, 0.95)}
+    row = {"effect": "yaw:torsional_spring", "score": 163.0, "score_se": 66.0, "passes": True,
+           "supported": False, "support": -20.4}  # fmt: skip
+    text = _decision([], [row], [], gap, gap)
+    assert text.startswith("none: no candidate effect both beats the base model")
+    assert "yaw:torsional_spring, scored +163 ± 66 nats" in text and "is 20 nats below" in text
+    plain = _decision([], [{**row, "passes": False}], [], gap, gap)
+    assert plain.startswith("none: no candidate effect beats the base model by the calibrated margin")
+    assert "support" not in plain
+
+
 def test_cli_cold_starts_override_the_budget(tmp_path, monkeypatch):
     """``--cold-starts N`` runs the chosen budget with N cold starts per candidate; without
     it the budget is passed by name."""

@@ -16,8 +16,8 @@ def candidates_figure(cands: list[dict], n_scored: int):
     scores far below zero are cut at the left edge (hatched, value written).
 
     ``cands``: the ``candidates`` rows of ``discovery.json`` (``score``, ``score_se`` [nats],
-    ``step``, ``effect``, ``axis``, ``passes``, ``tied``, ``chosen_by``); ``n_scored``: held-out
-    samples.  Returns the matplotlib figure.
+    ``step``, ``effect``, ``axis``, ``passes``, ``supported``, ``tied``, ``chosen_by``);
+    ``n_scored``: held-out samples.  Returns the matplotlib figure.
     """
     ok = [c for c in cands if c.get("score") is not None and np.isfinite(c["score"])]
     fig = new_figure((10.0, 1.2 + 0.3 * max(len(ok), 1)))
@@ -30,11 +30,14 @@ def candidates_figure(cands: list[dict], n_scored: int):
     labels = [label(c) for c in ok][::-1]
     x = np.asarray([c["score"] for c in ok][::-1]) / n_scored
     err = 2 * np.asarray([c["score_se"] for c in ok][::-1]) / n_scored
-    right = max(float(np.max(x + err, initial=0.0)), 5 * MARGIN_PER_SAMPLE)
+    # the right edge from the bars shown whole (a cut bar's huge SE once stretched it to
+    # +13 nats per sample and hid every bar near the margin)
+    right = max(float(np.max((x + err)[x > -1.0], initial=0.0)), 5 * MARGIN_PER_SAMPLE)
     left = -max(right, 1.0)
     shown = np.clip(x, left, None)
     y = np.arange(len(ok))
-    colors = ["C2" if c.get("passes") else "0.6" for c in ok][::-1]
+    colors = ["C2" if c.get("passes") and c.get("supported", True) else "C1" if c.get("passes") else "0.6"
+              for c in ok][::-1]
     bars = ax.barh(y, shown, color=colors)
     ax.errorbar(np.clip(x, left, None), y, xerr=np.where(x > left, err, 0), fmt="none", ecolor="k",
                 capsize=2)  # fmt: skip
@@ -50,7 +53,9 @@ def candidates_figure(cands: list[dict], n_scored: int):
     ax.set_xlim(left * 1.05, right * 1.05)
     ax.set_xlabel("held-out log predictive density minus the current model's, per sample [nats] "
                   "(± 2 SE)")  # fmt: skip
-    ax.set_title("Candidate effects (green: passes the margin; hatched: cut at the left edge)", loc="left")
+    ax.set_title("Candidate effects (green: passes the margin and the fitting window supports it;\n"
+                 "orange: passes, not supported; grey: does not pass; hatched: cut at the left edge)",
+                 loc="left", fontsize="medium")
     ax.legend(loc="lower right", fontsize="small")
     ax.grid(True, axis="x", alpha=0.4)
     fig.tight_layout()

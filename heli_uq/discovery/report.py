@@ -91,8 +91,8 @@ def _candidate_rows(rows: list[dict]) -> list[dict]:
         axes = sorted({e.split(":")[0] for e in r["added"]})
         row = {"effect": "+".join(kinds), "axis": "+".join(axes), "score": r["score"],
                "score_se": r["score_se"], "step": r["step"], "model": r["effect"]}  # fmt: skip
-        for k in ("score_per_sample", "passes", "tied", "chosen_by", "held_out", "fit", "laplace", "seconds",
-                  "error"):
+        for k in ("score_per_sample", "passes", "support", "supported", "tied", "chosen_by", "held_out",
+                  "fit", "laplace", "seconds", "error"):
             if k in r:
                 row[k] = r[k]
         out.append(row)
@@ -235,6 +235,11 @@ def _decision(added, rows, steps, before, after) -> str:
         best = next((r for r in rows if r.get("score") is not None), None)
         why = (f"; the best, {best['effect']}, scored {best['score']:+.0f} ± {best['score_se']:.0f} "
                f"nats on held-out blocks") if best else ""  # fmt: skip
+        if best and best.get("passes") and not best.get("supported"):
+            return (f"none: no candidate effect both beats the base model by the calibrated margin and is "
+                    f"supported by the fitting window{why}, above the margin, but its fitting-window log "
+                    f"posterior at the MAP, less a BIC penalty per parameter, is {-best['support']:.0f} "
+                    "nats below the base model's.")  # fmt: skip
         return f"none: no candidate effect beats the base model by the calibrated margin{why}."
     names = " and ".join(f"{e.split(':')[1]} on {e.split(':')[0]}" for e in added)
     tied = steps[0].get("tied") or []
@@ -326,19 +331,23 @@ def _report(result, where, ranking, steps, base, budget, fit_window, score_windo
               "importance weights toward the posterior (ESS: their effective number); where Pareto k "
               "exceeds 0.7 the weights are not trusted and the predictive is the plug-in one at the "
               "MAP (marked *MAP*).", "",
-              "| step | effect | axis | score [nats] | SE | per sample | passes | "
+              "*Support*: the fitting window's log posterior at the MAP, less 0.5 log(n) per "
+              "parameter (BIC), minus the current model's [nats]; a candidate is added only if it "
+              "passes the margin and this is positive.", "",
+              "| step | effect | axis | score [nats] | SE | per sample | passes | support [nats] | "
               "held-out RMSE pitch / yaw [rad] | held-out V | Pareto k (ESS) | fit [s] |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+              "|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for c in result["candidates"]:
         if c.get("score") is None:
             lines.append(f"| {c['step']} | {c['effect']} | {c['axis']} | failed: {c.get('error')} |"
-                         " | | | | | | |")  # fmt: skip
+                         " | | | | | | | |")  # fmt: skip
             continue
         held, imp = c["held_out"], c.get("laplace") or {}
         k = f"{imp['pareto_k']:.2f} ({imp['ess']:.0f})" if imp else "–"
         k += " *MAP*" if imp.get("predictive") == "map" else ""
         lines.append(f"| {c['step']} | {c['effect']} | {c['axis']} | {c['score']:+.0f} | {c['score_se']:.0f} "
                      f"| {c['score_per_sample']:+.3f} | {'yes' if c['passes'] else 'no'} | "
+                     f"{c['support']:+.0f} | "
                      f"{held['rmse_theta']:.3f} / {held['rmse_psi']:.3f} | {held['V']:.3f} | {k} | "
                      f"{c['seconds']:.0f} |")  # fmt: skip
     lines += _closer_lines(result["candidates"], base["score"])

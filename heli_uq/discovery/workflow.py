@@ -37,7 +37,10 @@ Steps (the module of each in parentheses):
    by that margin are *tied* with it (effects can act alike on a record: a dead band
    below every voltage used is a torque offset); the fitting window's log posterior at
    the MAP with a BIC penalty per parameter breaks the tie, and the report names the
-   rivals.  Among models that pass, one more effect must
+   rivals.  A model must also be *supported* by the fitting window (that penalised log
+   posterior above the current model's): an effect fitted to nothing can widen the
+   predictive band and so score on held-out blocks where the current model is far off.
+   Among models that pass, one more effect must
    again pass the margin against the smaller model (parsimony).  With ``max_effects > 1``
    the step repeats from the chosen model until nothing passes.
 6. **Refit** the chosen model with NUTS (:func:`heli_uq.output.sample_posterior`) and
@@ -318,12 +321,11 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
                         base_fit, base = again_fit, again
                         where = locate(base_fit, out)
                     continue
-        rows = rank(results, current_res, n_scored)
+        rows = rank(results, current_res, n_scored, n_fit)
         room = max_effects - (len(current) - len(base_effects))
         if room >= 2 and (cost.pair_top >= 2 or cost.pair_anchors >= 1):
             pairs = {}
-            for a, b in pairs_to_fit(rows, cost.pair_top, cost.pair_anchors, results, current_res,
-                                     n_fit):
+            for a, b in pairs_to_fit(rows, cost.pair_top, cost.pair_anchors):
                 ea, eb = a.split("+")[-1], b.split("+")[-1]
                 effects = current + [ea, eb]
                 guess = {**results[a]["map"], **{k: v for k, v in results[b]["map"].items()
@@ -332,14 +334,15 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
                                             nests=(current_res, current_map))  # fmt: skip
             pair_results = run_round(pairs, store, record, scheduler, say)
             results.update(pair_results)
-            rows = rank(results, current_res, n_scored)
+            rows = rank(results, current_res, n_scored, n_fit)
         for r in rows:
             r["step"] = len(steps) + 1
             r["added"] = [e for e in r["effect"].split("+") if e not in current]
         all_rows += rows
         choice = choose(rows, results, n_scored, n_fit)
         if choice is None:
-            steps.append({"step": len(steps) + 1, "added": [], "decision": "nothing passes the margin"})
+            steps.append({"step": len(steps) + 1, "added": [],
+                          "decision": "nothing passes the margin with the fitting window's support"})
             break
         added = choice["added"]
         steps.append({"step": len(steps) + 1, "added": added, "score": choice["score"],

@@ -87,7 +87,11 @@ def test_discover_says_none_without_a_hidden_effect_and_reuses_fits(tmp_path):
     messages = []
     again = discover(rec, tmp_path, log=messages.append, **kwargs)
     assert any(f"reusing {len(CANDIDATES)} stored fit(s)" in m for m in messages), messages
-    assert again["candidates"] == res["candidates"]
+    assert all(c["reused"] for c in again["candidates"]) and not any(c["reused"] for c in res["candidates"])
+    assert [{**c, "reused": False} for c in again["candidates"]] == res["candidates"]
+    # the report's minutes exclude the reused fits, and it says so
+    n = len(CANDIDATES)
+    assert f"{n} of {n} candidate fits were reused" in (tmp_path / "report.md").read_text()
 
 
 def test_bad_input_is_refused_before_any_fit(tmp_path):

@@ -44,7 +44,8 @@ def rank(results: dict, reference: dict, n_scored: int, n_fit: int) -> list[dict
                      "passes": passes(res["block_scores"], reference["block_scores"], n_scored),
                      "held_out": res["score"], "fit": res["fit"], "map_value": res["map_value"],
                      "laplace": res.get("laplace"), "seconds": res["seconds"],
-                     "support": float(support), "supported": bool(support > 0)})  # fmt: skip
+                     "support": float(support), "supported": bool(support > 0),
+                     "reused": bool(res.get("reused"))})  # fmt: skip
     rows.sort(key=lambda r: -np.inf if r["score"] is None else -r["score"])
     return rows
 

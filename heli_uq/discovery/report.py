@@ -92,7 +92,7 @@ def _candidate_rows(rows: list[dict]) -> list[dict]:
         row = {"effect": "+".join(kinds), "axis": "+".join(axes), "score": r["score"],
                "score_se": r["score_se"], "step": r["step"], "model": r["effect"]}  # fmt: skip
         for k in ("score_per_sample", "passes", "support", "supported", "tied", "chosen_by", "held_out",
-                  "fit", "laplace", "seconds", "error"):
+                  "fit", "laplace", "seconds", "reused", "error"):
             if k in r:
                 row[k] = r[k]
         out.append(row)
@@ -287,6 +287,18 @@ def _unseen_lines(record, fit_window, score_window) -> list[str]:
             "(a gain error or an input nonlinearity is not constrained by the fit)."]
 
 
+def _reused_text(candidates: list[dict]) -> str:
+    """A sentence when candidate fits were reused from an earlier run in the same directory
+    (the minutes above then do not include them)."""
+    n = sum(bool(c.get("reused")) for c in candidates)
+    if not n:
+        return ""
+    spent = sum(c["seconds"] for c in candidates if c.get("reused") and c.get("seconds") is not None)
+    return (f" {n} of {len(candidates)} candidate fits were reused from an earlier run in this "
+            f"directory; the minutes above exclude them (they took {spent / 60:.1f} worker-minutes "
+            "then).")
+
+
 def _report(result, where, ranking, steps, base, budget, fit_window, score_window, n_scored, health,
             whole, seconds, record) -> str:  # fmt: skip
     """``seconds``: the whole run's and the search's (base fit, candidates, decision) [s]."""
@@ -297,7 +309,7 @@ def _report(result, where, ranking, steps, base, budget, fit_window, score_windo
              f"candidates, {(total - search) / 60:.1f} min for the NUTS posterior and these outputs. "
              f"Candidates fitted on {fit_window[0]:g}-"
              f"{fit_window[1]:g} s and scored on {score_window[0]:g}-{score_window[1]:g} s "
-             f"({n_scored} samples in input-segment blocks).", "",
+             f"({n_scored} samples in input-segment blocks).{_reused_text(result['candidates'])}", "",
              "## 1. Where the base model fails", "",
              f"Worst axis: **{where['axis']}** (held-out RMSE / fitted error scale: pitch "
              f"{where['error_ratio']['theta']:.1f}, yaw {where['error_ratio']['psi']:.1f}).", "",

@@ -76,7 +76,8 @@ class CandidateStore:
 
 
 def run_round(tasks: dict, store: CandidateStore, record: Experiment, scheduler, log) -> dict:
-    """Fit every task not already stored; ``{key: result}`` (a failed one: ``{"error"}``)."""
+    """Fit every task not already stored; ``{key: result}`` (a failed one: ``{"error"}``; a
+    stored one has ``reused: True``)."""
     sigs = {k: task_signature(record, t) for k, t in tasks.items()}
     done = {k: r for k in tasks if (r := store.load(k, sigs[k])) is not None}
     if done:
@@ -97,4 +98,4 @@ def run_round(tasks: dict, store: CandidateStore, record: Experiment, scheduler,
         log(f"fitting {len(todo)} model(s) ({'serial' if scheduler == 'serial' else 'Dask'}): "
             f"{', '.join(todo)}")  # fmt: skip
     fresh = run_tasks(fit_and_score, todo, scheduler=scheduler, on_result=finished)
-    return {k: dict(done.get(k) or fresh[k]) for k in tasks}
+    return {k: {**done[k], "reused": True} if k in done else dict(fresh[k]) for k in tasks}

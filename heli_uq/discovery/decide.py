@@ -32,13 +32,13 @@ def rank(results: dict, reference: dict, n_scored: int, n_fit: int) -> list[dict
     """Candidates with their score difference to ``reference`` and its SE, best first;
     ``support``: their BIC-penalised fitting-window log posterior less ``reference``'s
     [nats] (:func:`_training_support`), ``supported``: it is positive."""
-    rows = []
+    rows, floor = [], _training_support(reference, n_fit)
     for key, res in results.items():
         if "error" in res:
             rows.append({"effect": key, "score": None, "score_se": None, "error": res["error"]})
             continue
         diff, se = compare(res["block_scores"], reference["block_scores"])
-        support = _training_support(res, n_fit) - _training_support(reference, n_fit)
+        support = _training_support(res, n_fit) - floor
         rows.append({"effect": key, "score": diff, "score_se": se,
                      "score_per_sample": diff / n_scored,
                      "passes": passes(res["block_scores"], reference["block_scores"], n_scored),

@@ -18,7 +18,7 @@ Steps (the module of each in parentheses):
    MAP where Pareto k rejects them); with two
    or more effects still allowed, pairs too: of the :attr:`Budget.pair_top` singles that
    fit the fitting window best and the best single by held-out score, and of each of the
-   :attr:`Budget.pair_anchors` best with every other single
+   :attr:`Budget.pair_anchors` best with every other single the fitting window supports
    (:func:`~heli_uq.discovery.decide.pairs_to_fit`; single effects can be weak alone and
    strong together, as friction and a torque offset on the rig's yaw).
    A candidate nests the current model, so when one fits the fitting window much
@@ -88,7 +88,7 @@ class Budget:
     ``cold_starts``: starts of a candidate beyond its warm ones
     (:func:`~heli_uq.discovery.candidates.warm_starts`); ``draws``: Laplace draws per
     candidate; ``pair_top``: how many of the best singles are paired with each other;
-    ``pair_anchors``: how many of the best are paired with every other single
+    ``pair_anchors``: how many of the best are paired with every other supported single
     (:func:`~heli_uq.discovery.decide.pairs_to_fit`); ``chains, warmup,
     samples``: the NUTS refit; ``nuts_before``: the base model gets a NUTS posterior too
     (else its Laplace approximation is *before*); ``newton_steps``: of each MAP polish;

@@ -136,7 +136,8 @@ def _gap_record(v, rmse):
 
 
 def test_a_refit_that_predicts_worse_than_the_base_is_reported_not_passed_as_a_fix():
-    from heli_uq.discovery.report import _decision, gap_warnings
+    from heli_uq.discovery.report import _decision
+    from heli_uq.discovery.report_page import gap_warnings
 
     before = {"train": _gap_record(0.010, 0.07), "test": _gap_record(0.020, 0.10)}
     better = {"train": _gap_record(0.005, 0.05), "test": _gap_record(0.019, 0.09)}
@@ -208,7 +209,7 @@ def test_the_report_names_candidates_closer_than_the_base_yet_scored_below_it():
     """A candidate whose held-out mean simulation is much closer (V < 0.8 x the base's) but
     whose score is negative is named (the rig's yaw friction + offset on 0-91 s); a closer
     candidate that scores above the base, one only a little closer, or a later step's is not."""
-    from heli_uq.discovery.report import CLOSER_V_FRACTION, _closer_lines
+    from heli_uq.discovery.report_page import CLOSER_V_FRACTION, _closer_lines
 
     base = _gap_record(0.91, 0.95)
 

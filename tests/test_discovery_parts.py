@@ -470,29 +470,29 @@ def test_a_candidate_the_fitting_window_does_not_support_is_not_added():
 
 
 def test_a_much_better_candidate_restarts_the_current_model_from_its_values():
-    from heli_uq.discovery.workflow import RESTART_NATS, _nested_guess
+    from heli_uq.discovery.nesting import RESTART_NATS, nested_guess
 
     current = {"map_value": 1000.0, "map": {"K_pp": 0.1, "theta_0": 0.0}}
     better = {"map_value": 1000.0 - 2 * RESTART_NATS, "map": {"K_pp": 0.3, "theta_0": 0.1, "T_0_yaw": -0.01}}
     close = {"map_value": 1000.0 - 0.5 * RESTART_NATS, "map": {"K_pp": 0.2, "theta_0": 0.0, "F_c_yaw": 0.01}}
     failed = {"error": "ParameterError: diverged"}
     # the nested parameters of the best fit, without the candidate's own
-    guess = _nested_guess({"a": close, "b": better, "c": failed}, current, current["map"])
+    guess = nested_guess({"a": close, "b": better, "c": failed}, current, current["map"])
     assert guess == {"K_pp": 0.3, "theta_0": 0.1}
     # no candidate clearly better, or none fitted: keep the current MAP
-    assert _nested_guess({"a": close}, current, current["map"]) is None
-    assert _nested_guess({"c": failed}, current, current["map"]) is None
+    assert nested_guess({"a": close}, current, current["map"]) is None
+    assert nested_guess({"c": failed}, current, current["map"]) is None
 
 
 def test_after_a_restart_only_the_candidates_worse_than_the_new_current_fit_are_refitted():
     """A candidate nests the current model: one whose MAP is worse than the refitted current
     model's sits in a poorer basin and is refitted; one at least as good is kept."""
-    from heli_uq.discovery.workflow import _beyond
+    from heli_uq.discovery.nesting import beyond
 
     again = {"map_value": 900.0}
     results = {"winner": {"map_value": 100.0}, "equal": {"map_value": 900.0},
                "trapped": {"map_value": 900.5}, "failed": {"error": "ParameterError: diverged"}}
-    assert list(_beyond(results, again)) == ["winner", "equal"]
+    assert list(beyond(results, again)) == ["winner", "equal"]
 
 
 def test_the_store_keeps_each_task_of_a_model_for_a_rerun(tmp_path):
@@ -566,3 +566,39 @@ def test_the_budgets_give_their_nuts_runs_the_time_their_targets_leave():
     quick = BUDGETS["quick"]
     expected = 60.0 * quick.minutes - 360.0 - report.OUTPUT_SECONDS
     assert quick.minutes == 10.0 and expected - 5.0 < report._time_left(quick, now - 360.0) <= expected
+
+
+def test_a_pair_starts_from_both_members_and_nests_the_better_one():
+    from heli_uq.discovery.nesting import pair_start
+
+    a = {"map_value": -100.0, "map": {"K_pp": 0.1, "F_c_yaw": 0.01}}
+    b = {"map_value": -300.0, "map": {"K_pp": 0.2, "T_0_pitch": 0.002}}
+    guess, member = pair_start(a, b)
+    # a's shared parameters, b's own one
+    assert guess == {"K_pp": 0.1, "F_c_yaw": 0.01, "T_0_pitch": 0.002}
+    assert member is b
+    assert pair_start(b, a)[1] is b
+
+
+def test_pair_fits_holding_the_chosen_single_are_carried_into_the_next_step():
+    """Step 2's singles (the chosen model plus one effect) that step 1 fitted as pairs are
+    not fitted again, under the next step's key, unless they fit worse than the chosen
+    model by more than the nesting slack (a poorer basin: fitted again from it)."""
+    from heli_uq.discovery.candidates import NESTED_SLACK_NATS
+    from heli_uq.discovery.nesting import carried
+
+    chosen = {"map_value": -1000.0}
+    results = {"yaw:deadband": chosen,
+               "pitch:spring": {"map_value": -900.0},
+               "pitch:spring+yaw:deadband": {"map_value": -1001.0},  # other member order
+               "yaw:deadband+yaw:offset": {"map_value": -1000.0 + 0.5 * NESTED_SLACK_NATS, "reused": True},
+               "yaw:deadband+yaw:drag": {"map_value": -1000.0 + 2 * NESTED_SLACK_NATS},  # poorer basin
+               "yaw:deadband+pitch:drag": {"error": "ParameterError: diverged"},
+               "pitch:spring+yaw:offset": {"map_value": -2000.0}}  # does not hold the chosen one
+    out = carried(results, ["yaw:deadband"], chosen, step=1)
+    assert list(out) == ["yaw:deadband+pitch:spring", "yaw:deadband+yaw:offset"]
+    assert out["yaw:deadband+pitch:spring"] == {"map_value": -1001.0, "reused": False, "carried": 1}
+    # carried from this run, not reused from an earlier one
+    assert out["yaw:deadband+yaw:offset"]["reused"] is False
+    # after a pair was chosen nothing is one effect beyond it
+    assert carried(results, ["pitch:spring", "yaw:deadband"], results["pitch:spring+yaw:deadband"], 1) == {}

@@ -45,7 +45,8 @@ def rank(results: dict, reference: dict, n_scored: int, n_fit: int) -> list[dict
                      "held_out": res["score"], "fit": res["fit"], "map_value": res["map_value"],
                      "laplace": res.get("laplace"), "seconds": res["seconds"],
                      "support": float(support), "supported": bool(support > 0),
-                     "reused": bool(res.get("reused"))})  # fmt: skip
+                     "reused": bool(res.get("reused")),
+                     **({"carried": res["carried"]} if res.get("carried") else {})})  # fmt: skip
     rows.sort(key=lambda r: -np.inf if r["score"] is None else -r["score"])
     return rows
 

@@ -20,9 +20,13 @@ Steps (the module of each in parentheses):
    fit the fitting window best and the best single by held-out score, and of each of the
    :attr:`Budget.pair_anchors` best with every other single the fitting window supports
    (:func:`~heli_uq.discovery.decide.pairs_to_fit`; single effects can be weak alone and
-   strong together, as friction and a torque offset on the rig's yaw).
+   strong together, as friction and a torque offset on the rig's yaw).  A pair starts
+   from its members' MAPs and nests the better member; the pair fits that hold the
+   single chosen at a step are that step's successor's singles and are not fitted again
+   (:mod:`~heli_uq.discovery.nesting`).
    A candidate nests the current model, so when one fits the fitting window much
-   better (:data:`RESTART_NATS`), the current model is refitted once from its values;
+   better (:data:`~heli_uq.discovery.nesting.RESTART_NATS`), the current model is refitted
+   once from its values;
    if that finds a better basin (a stiff hidden effect can trap the base fit: a pitch
    friction record left the base at pitch RMSE 1.5 rad), the candidates that fit worse
    than the refitted current model are fitted again from it (the others already sit in a
@@ -60,6 +64,7 @@ from heli_uq.discovery.candidates import FitTask, fitted_predictive, off_start, 
 from heli_uq.discovery.decide import choose, pairs_to_fit, rank
 from heli_uq.discovery.implied import base_features, effect_features, implied_torque
 from heli_uq.discovery.locate import locate
+from heli_uq.discovery.nesting import RESTART_NATS, beyond, carried, model_key, nested_guess, pair_start
 from heli_uq.discovery.report import write_outputs
 from heli_uq.discovery.rounds import CandidateStore, run_round
 from heli_uq.discovery.score import gap_text
@@ -73,9 +78,6 @@ __all__ = ["discover", "Budget", "BUDGETS", "FIT_FRACTION", "MIN_SECONDS"]  # fm
 
 #: Fraction of the window the candidates are fitted on when no train/test split is given.
 FIT_FRACTION = 0.7
-#: A candidate whose fitting-window log posterior beats the current model's by more than
-#: this [nats] triggers one refit of the current model from the candidate's values.
-RESTART_NATS = 10.0
 #: Shortest window [s] discovery accepts (fitting and held-out part together).
 MIN_SECONDS = 20.0
 
@@ -162,39 +164,6 @@ def _candidate_effects(current: list[str], vocabulary=None) -> list[str]:
     have = set(current)
     pool = vocabulary or [f"{axis}:{kind}" for axis in AXES for kind in EFFECTS]
     return [e for e in pool if e not in have]
-
-
-def _nested_guess(results: dict, current_res: dict, current_map: dict) -> dict | None:
-    """The current model's parameters at the MAP of the candidate that fits the fitting
-    window best, if that candidate beats the current MAP by more than
-    :data:`RESTART_NATS`, else None.
-
-    A candidate nests the current model (its effect at zero is the current model), so a
-    much better candidate fit can mean the current MAP sits in a poor basin (a stiff
-    hidden effect can trap the base model's optimiser); refitting the current model from
-    the candidate's values finds out.
-    """
-    fitted = [r for r in results.values() if "error" not in r and np.isfinite(r["map_value"])]
-    if not fitted:
-        return None
-    best = min(fitted, key=lambda r: r["map_value"])
-    if best["map_value"] >= current_res["map_value"] - RESTART_NATS:
-        return None
-    return {k: v for k, v in best["map"].items() if k in current_map}
-
-
-def _beyond(results: dict, current_res: dict) -> dict:
-    """The candidate fits whose MAP is at least as good as the current model's (after a
-    restart found it a better basin): they are kept.  A candidate nests the current model,
-    so one that fits worse than it sits in a poorer basin and is refitted from it; one
-    that fits as well or better is not helped by that start."""
-    return {k: r for k, r in results.items()
-            if "error" not in r and r["map_value"] <= current_res["map_value"]}  # fmt: skip
-
-
-def _key(effects) -> str:
-    return "+".join(effects) if effects else "base"
-
 
 
 def discover(record: Experiment, out_dir, *, window=None, train=None, test=None, base_effects=(),
@@ -292,7 +261,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     while len(current) - len(base_effects) < max_effects:
         singles = {}
         for e in _candidate_effects(current, vocabulary):
-            if (key := _key(current + [e])) not in kept:
+            if (key := model_key(current + [e])) not in kept:
                 starts = warm_starts(current_map, current + [e], implied.get(e, {}))
                 singles[key] = task(current + [e], starts, nests=(current_res, current_map))
         fresh = run_round(singles, store, record, scheduler, say)
@@ -300,7 +269,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         kept = {}
         if not restarted:
             restarted = True
-            guess = _nested_guess(results, current_res, current_map)
+            guess = nested_guess(results, current_res, current_map)
             if guess is not None:  # a candidate's MAP may lie in a better basin of the current model
                 say("refitting the current model from the best candidate's MAP")
                 again_task = task(current, (guess, current_map))
@@ -311,7 +280,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
                     say(f"  the refit failed ({type(exc).__name__}: {exc}); keeping the current MAP")
                     again = {"map_value": np.inf}
                 if again["map_value"] < current_res["map_value"] - RESTART_NATS:
-                    kept = _beyond(results, again)
+                    kept = beyond(results, again)
                     say(f"the current model's MAP improved by "
                         f"{current_res['map_value'] - again['map_value']:.0f} nats; refitting "
                         f"from it the {len(results) - len(kept)} candidate(s) that fit worse than "
@@ -326,12 +295,9 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         if room >= 2 and (cost.pair_top >= 2 or cost.pair_anchors >= 1):
             pairs = {}
             for a, b in pairs_to_fit(rows, cost.pair_top, cost.pair_anchors):
-                ea, eb = a.split("+")[-1], b.split("+")[-1]
-                effects = current + [ea, eb]
-                guess = {**results[a]["map"], **{k: v for k, v in results[b]["map"].items()
-                                                 if k not in results[a]["map"]}}  # fmt: skip
-                pairs[_key(effects)] = task(effects, (guess,) + warm_starts(current_map, effects, {}),
-                                            nests=(current_res, current_map))  # fmt: skip
+                effects = current + [a.split("+")[-1], b.split("+")[-1]]
+                guess, member = pair_start(results[a], results[b])
+                pairs[model_key(effects)] = task(effects, (guess,), nests=(member, member["map"]))
             pair_results = run_round(pairs, store, record, scheduler, say)
             results.update(pair_results)
             rows = rank(results, current_res, n_scored, n_fit)
@@ -354,6 +320,10 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         current_res = results[choice["effect"]]
         current_map = current_res["map"]
         restarted = False
+        kept = carried(results, current, current_res, len(steps))
+        if kept:
+            say(f"carrying {len(kept)} pair fit(s) of step {len(steps)} into step {len(steps) + 1}: "
+                f"{', '.join(kept)}")  # fmt: skip
 
     added = current[len(base_effects):]
     # 6. refit and compare

@@ -320,7 +320,8 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         current_res = results[choice["effect"]]
         current_map = current_res["map"]
         restarted = False
-        kept = carried(results, current, current_res, len(steps))
+        more = len(current) - len(base_effects) < max_effects  # another step follows
+        kept = carried(results, current, current_res, len(steps)) if more else {}
         if kept:
             say(f"carrying {len(kept)} pair fit(s) of step {len(steps)} into step {len(steps) + 1}: "
                 f"{', '.join(kept)}")  # fmt: skip

@@ -23,6 +23,7 @@ from heli_uq.model import (
     parse_effects,
     total_energy,
 )
+from heli_uq.model.terms.rigid_body import pitch_inertia, yaw_inertia
 from heli_uq.simulation import default_substeps, reference_solve, simulate, solve
 from heli_uq.simulation.reference import solver_error
 from heli_uq.simulation.stiffness import stiffness_check, stiffness_rates, substeps_covering
@@ -262,6 +263,32 @@ def test_stiffness_rates_are_the_friction_slope_at_rest():
 
             slope = jax.grad(pitch_acc)(0.0, float(level)) - jax.grad(pitch_acc)(0.0, 0.0)
             np.testing.assert_allclose(rate, -float(slope), rtol=1e-9)
+
+
+def test_stiffness_of_many_draws_at_once_equals_each_draw_from_the_inertia_definition():
+    """The rates of a run's draws, computed for all draws in one call, equal per draw the
+    sum of each yaw term's rate over the smallest ``M22`` found by evaluating
+    ``M22(theta)`` at every pitch angle of a record (pitch: over ``M11``), the larger axis;
+    a single draw as scalars gives the same float."""
+    model = build_model(["yaw:coulomb_friction", "yaw:stiction", "yaw:torsional_spring",
+                         "pitch:coulomb_friction"])
+    rng = np.random.default_rng(3)
+    n = 200
+    values = dict(TABLE1, F_c_yaw=0.004, F_s_yaw=0.002, k_yaw=0.004, psi_0_yaw=0.4, F_c_pitch=0.004)
+    draws = {name: float(values[name]) * np.exp(0.3 * rng.standard_normal(n))
+             for name in ("r_c", "m", "J_bc", "J_s", "F_c_yaw", "F_s_yaw", "k_yaw", "F_c_pitch")}  # fmt: skip
+    draws["h"] = 0.05 * rng.standard_normal(n)  # either sign: the minimum moves with it
+    thetas = rng.uniform(-1.2, 0.4, size=500)
+    rates = stiffness_rates(model, draws, thetas=thetas)
+    omega_s = 0.002  # the terms' default smoothing width [rad/s]
+    for i in range(n):
+        p = {k: v[i] for k, v in draws.items()}
+        m22 = min(float(yaw_inertia(p, th)) for th in thetas)
+        m11 = float(pitch_inertia(p))
+        yaw = (p["F_c_yaw"] + p["F_s_yaw"]) / (omega_s * m22) + math.sqrt(p["k_yaw"] / m22)
+        np.testing.assert_allclose(rates[i], max(yaw, p["F_c_pitch"] / (omega_s * m11)), rtol=1e-12)
+    one = model.stiffness(dict(values, **{k: v[7] for k, v in draws.items()}), thetas)
+    assert isinstance(one, float) and one == pytest.approx(rates[7], rel=1e-12)
 
 
 def test_stiffness_check_flags_the_draws_the_solver_gets_wrong():

@@ -238,22 +238,26 @@ class HeliModel(eqx.Module):
         a = self.acceleration(self.prepare(p), y[:2], y[2:], u)
         return jnp.concatenate([y[2:], a])
 
-    def stiffness(self, p, thetas=None) -> float:
+    def stiffness(self, p, thetas=None):
         """Largest rate [1/s] the terms add near rest, on either axis (0 for the linear model).
 
         The rates of the terms on one axis add (Coulomb friction and stiction on yaw both
-        steepen the yaw friction law at rest); the larger axis sum is returned.
-        ``thetas``: the pitch angles [rad] the yaw inertia is taken over (default all).
+        steepen the yaw friction law at rest); the larger axis sum is returned.  A term's
+        rate that is not finite is left out.  ``p``: values by name, scalars (a float is
+        returned) or arrays of one shape, e.g. ``(n,)`` posterior draws (an array of that
+        shape is returned).  ``thetas``: the pitch angles [rad] the yaw inertia is taken
+        over (default all).
         """
-        p = {k: float(v) for k, v in p.items()}
+        p = {k: np.asarray(v, dtype=float) for k, v in p.items()}
         inertia = self.mechanics.inertia_bounds(p, thetas)
         per_axis: dict = {}
         for term in self.terms:
-            rate = term.stiffness(p, inertia)
-            if math.isfinite(rate):
-                axis = getattr(term, "axis", None)
-                per_axis[axis] = per_axis.get(axis, 0.0) + rate
-        return max([0.0, *per_axis.values()])
+            rate = np.asarray(term.stiffness(p, inertia), dtype=float)
+            axis = getattr(term, "axis", None)
+            per_axis[axis] = per_axis.get(axis, 0.0) + np.where(np.isfinite(rate), rate, 0.0)
+        shape = np.broadcast_shapes(*(np.shape(v) for v in p.values()))
+        rate = np.maximum.reduce([np.zeros(shape), *(np.broadcast_to(r, shape) for r in per_axis.values())])
+        return float(rate) if rate.ndim == 0 else rate
 
     # ---------------------------------------------------------- description
     @property

@@ -39,9 +39,7 @@ def stiffness_rates(model: HeliModel, draws: Mapping, *, fixed: Mapping | None =
     """
     base = {**model.start_values(), **{k: float(v) for k, v in (fixed or {}).items()}}
     columns = {k: np.ravel(np.asarray(draws[k], dtype=float)) for k in base if k in draws}
-    n = len(next(iter(columns.values()))) if columns else 1
-    return np.array([model.stiffness({k: (columns[k][i] if k in columns else v) for k, v in base.items()},
-                                     thetas) for i in range(n)])  # fmt: skip
+    return np.atleast_1d(model.stiffness({**base, **columns}, thetas))
 
 
 def substeps_covering(rates, dt: float) -> int:

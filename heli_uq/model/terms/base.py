@@ -109,8 +109,11 @@ class AbstractTerm(eqx.Module):
     def stiffness(self, p, inertia) -> float:
         """Largest rate [1/s] this term adds to the linearised dynamics (0 if negligible).
 
-        ``p``: parameter values; ``inertia``: ``(M11, M22_min)`` [kg m^2].  Used to choose
-        the number of solver substeps (:func:`heli_uq.simulation.default_substeps`).
+        ``p``: parameter values; ``inertia``: ``(M11, M22_min)`` [kg m^2]; either may hold
+        arrays of one shape (posterior draws), and the rate then has that shape (numpy
+        operations, not ``math``).  Used to choose the number of solver substeps
+        (:func:`heli_uq.simulation.default_substeps`) and to check a run's draws
+        (:func:`heli_uq.simulation.stiffness_check`).
         """
         return 0.0
 

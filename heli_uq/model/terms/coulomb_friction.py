@@ -26,6 +26,7 @@ from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 from heli_uq.model.parameter import Parameter
 from heli_uq.model.prior import Prior
@@ -37,11 +38,12 @@ __all__ = ["CoulombFriction", "OMEGA_S", "rate_at_rest"]
 OMEGA_S = 0.002
 
 
-def rate_at_rest(level: float, omega_s: float, inertia, axis: str) -> float:
+def rate_at_rest(level, omega_s: float, inertia, axis: str):
     """Rate [1/s] a friction law ``level tanh(omega / omega_s)`` [N m] adds at rest on
     ``axis``: its slope ``level / omega_s`` over that axis' inertia (``inertia`` =
-    ``(M11, M22_min)`` [kg m^2])."""
-    return float(level) / (omega_s * float(inertia[axis_index(axis)]))
+    ``(M11, M22_min)`` [kg m^2]); ``level`` and the inertias scalars or arrays of one
+    shape (draws)."""
+    return np.asarray(level, dtype=float) / (omega_s * np.asarray(inertia[axis_index(axis)], dtype=float))
 
 
 class CoulombFriction(AbstractEffect, AbstractTorque):

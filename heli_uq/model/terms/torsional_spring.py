@@ -12,6 +12,7 @@ import math
 from typing import ClassVar
 
 import equinox as eqx
+import numpy as np
 
 from heli_uq.model.parameter import Parameter
 from heli_uq.model.prior import Prior
@@ -40,4 +41,5 @@ class TorsionalSpring(AbstractEffect, AbstractTorque):
         return on_axis(self.axis, -p[self.name("k")] * (angle - p[self.name("psi_0")]))
 
     def stiffness(self, p, inertia):
-        return math.sqrt(max(float(p[self.name("k")]), 0.0) / float(inertia[axis_index(self.axis)]))
+        k = np.maximum(np.asarray(p[self.name("k")], dtype=float), 0.0)
+        return np.sqrt(k / np.asarray(inertia[axis_index(self.axis)], dtype=float))

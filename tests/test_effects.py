@@ -289,6 +289,11 @@ def test_stiffness_of_many_draws_at_once_equals_each_draw_from_the_inertia_defin
         np.testing.assert_allclose(rates[i], max(yaw, p["F_c_pitch"] / (omega_s * m11)), rtol=1e-12)
     one = model.stiffness(dict(values, **{k: v[7] for k, v in draws.items()}), thetas)
     assert isinstance(one, float) and one == pytest.approx(rates[7], rel=1e-12)
+    # a missing angle (NaN) is left out; one angle is that angle's inertia
+    np.testing.assert_array_equal(stiffness_rates(model, draws, thetas=np.append(thetas, np.nan)), rates)
+    single = model.mechanics.inertia_bounds({k: v[:5] for k, v in draws.items()}, [0.3])[1]
+    np.testing.assert_allclose(single, [float(yaw_inertia({k: v[i] for k, v in draws.items()}, 0.3))
+                                        for i in range(5)], rtol=1e-12)  # fmt: skip
 
 
 def test_stiffness_check_flags_the_draws_the_solver_gets_wrong():

@@ -94,9 +94,13 @@ def _sinusoid_minimum(a, b, angles):
     of the (broadcast) ``a``, ``b``.  The sinusoid is ``R cos(x + phi)``, lowest where
     ``x + phi = pi (mod 2 pi)`` and falling with the circular distance from there, so its
     minimum over a set is at one of the two sorted neighbours of that point: O(log m) per
-    draw instead of O(m)."""
-    x = np.unique(np.mod(np.ravel(angles), 2.0 * np.pi))
+    draw instead of O(m).  Angles that are not finite are left out; with none left, the
+    minimum over every angle, ``-hypot(a, b)``."""
+    x = np.ravel(angles)
+    x = np.unique(np.mod(x[np.isfinite(x)], 2.0 * np.pi))
     a, b = np.broadcast_arrays(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+    if x.size == 0:
+        return -np.hypot(a, b)
     target = np.mod(np.pi - np.arctan2(b, a), 2.0 * np.pi)
     right = np.searchsorted(x, target) % x.size
     nearest = np.stack([x[right], x[right - 1]])  # index -1 wraps to the largest angle

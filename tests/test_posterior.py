@@ -210,8 +210,11 @@ def test_cli_run_main_job_end_to_end(tmp_path, capsys):
                  "--no-progress", "--out", str(out)])  # fmt: skip
     assert code == 0, capsys.readouterr().err
     for f in ("data/data.png", "table3/simulation.png", "record_table1/simulation.csv",
-              "posterior/posterior.nc", "posterior/bands.png", "posterior/summary.json"):  # fmt: skip
+              "posterior/posterior.nc", "posterior/bands.png", "posterior/summary.json",
+              "prior/prior.nc", "prior/bands.png"):  # fmt: skip
         assert (out / f).is_file(), f
+    prior = json.loads((out / "prior" / "summary.json").read_text())
+    assert prior["sampler"] == "prior" and set(prior["coverage90"]) == {"train", "test"}
     idata = az.from_netcdf(out / "posterior" / "posterior.nc")
     n_train = int(idata.constant_data["train_mask"].sum())
     n_test = int(idata.constant_data["test_mask"].sum())

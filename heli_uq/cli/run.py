@@ -25,6 +25,8 @@ PROG = "heli-uq"
 #: ``run``: the posterior's training window is this fraction of the record (0-91 s of the
 #: 131 s rig record, as in the calibration study); the rest is the test window.
 RUN_TRAIN_FRACTION = 91.0 / 131.0
+#: ``run``: draws of the prior predictive check before the posterior.
+PRIOR_DRAWS = 500
 
 
 def _record_for_run(spec: str, out: Path):
@@ -59,12 +61,14 @@ def _check_posterior_size(record, model, args) -> None:
 
 
 def cmd_run(args) -> int:
-    """The main job: show the record, simulate Table 3 and the record (Tables 2 and 1), then
-    the posterior (NUTS, iid errors) with a train/test split and its bands."""
+    """The main job: show the record, simulate Table 3 and the record (Tables 2 and 1), check
+    the priors against the record, then the posterior (NUTS, iid errors) with a train/test
+    split and its bands."""
     import numpyro
 
     from heli_uq.model.tables import TABLE1, TABLE3_X0
     from heli_uq.output.posterior_study import sample_posterior
+    from heli_uq.output.prior_check import prior_predictive_check
 
     check_positive(args, ("chains", "warmup", "draws"))
     numpyro.set_host_device_count(args.chains)  # before the first JAX computation
@@ -87,6 +91,12 @@ def cmd_run(args) -> int:
         status |= code if name == "record_table1" else 0  # Table 2 may diverge: reported only
     t0, t_end = float(record.t[0]), float(record.t[0]) + record.duration
     split = round(t0 + RUN_TRAIN_FRACTION * record.duration, 2)
+    _, prior = prior_predictive_check(record, out / "prior", model=model, train=(t0, split),
+                                      test=(split, t_end), error="iid", draws=PRIOR_DRAWS,
+                                      seed=args.seed)  # fmt: skip
+    print(f"[prior] prior predictive check, {PRIOR_DRAWS} draws: {100 * prior['failed']:.0f} % fail the "
+          f"solver, {100 * prior['unphysical']:.0f} % unphysical -> {out / 'prior'}/bands.png"
+          + "".join(f"\n[prior] note: {n}" for n in prior["notes"]))  # fmt: skip
     logging.getLogger(__name__).info(
         f"[posterior] NUTS, iid errors, {model.label}, train {t0:g}:{split:g} s, test "
         f"{split:g}:{t_end:g} s, {args.chains} chains x ({args.warmup} + {args.draws})")
@@ -114,6 +124,10 @@ def add_parser(subparsers):
             "  DIR/table3/simulation.{csv,png}        nominal model, Table 3 conditions\n"
             "  DIR/record_table1/simulation.{csv,png} the record's inputs, paper Table 1\n"
             "  DIR/record_table2/simulation.{csv,png} the record's inputs, Table 2\n"
+            "  DIR/prior/{prior.nc,summary.json,bands.png}\n"
+            "      prior predictive check: 500 draws from the priors, simulated and\n"
+            "      set against the record (notes on failed, unphysical or conflicting\n"
+            "      draws)\n"
             "  DIR/posterior/{posterior.nc,summary.json,summary.csv,bands.png}\n"
             "      NUTS posterior (iid errors) of the model (the paper's, or with\n"
             "      --effects) on the first 91/131 of the record, bands with the rest\n"

@@ -53,6 +53,8 @@ def cmd_sample(args) -> int:
     if test is not None and train is None:
         raise ParameterError("--test needs --train (the test window follows the training window)")
     out = out_dir(args.out)
+    if args.sampler == "prior":
+        return _prior_check(args, record, model, priors, train, test, out)
     _, summary = sample_posterior(
         record, out, model=model, train=train, test=test, sampler=args.sampler, error=args.error,
         priors=priors, chains=args.chains, warmup=args.warmup, draws=args.draws,
@@ -80,6 +82,21 @@ def cmd_sample(args) -> int:
     return report_health(summary, args.strict)
 
 
+def _prior_check(args, record, model, priors, train, test, out) -> int:
+    from heli_uq.output.prior_check import prior_predictive_check
+
+    if args.resume:
+        raise ParameterError("--resume: a prior check saves nothing to resume; run it again")
+    _, summary = prior_predictive_check(record, out, model=model, train=train, test=test, priors=priors,
+                                        error=args.error, draws=args.draws, seed=args.seed)  # fmt: skip
+    keys = ("draws", "failed", "unphysical", "coverage90", "p_values", "wall_s")
+    print(json.dumps({k: summary[k] for k in keys}))
+    for note in summary["notes"]:
+        print(f"note: {note}")
+    print(f"wrote {out / 'prior.nc'}, summary.json, bands.png")
+    return 0
+
+
 def add_parser(subparsers):
     p = subparsers.add_parser(
         "sample",
@@ -102,6 +119,8 @@ def add_parser(subparsers):
             "examples:\n"
             "  heli-uq sample --data experimental --train 0:91 --test 91:131 --out out/post\n"
             "  heli-uq sample --data experimental --window 0:30 --sampler emcee --out out/em\n"
+            "  heli-uq sample --data experimental --sampler prior --draws 500 --error iid \\\n"
+            "      --out out/prior\n"
             "  heli-uq sample --data rec.csv --effects yaw:coulomb_friction --error iid \\\n"
             "      --out out/friction\n"
             "  heli-uq sample --data rec.csv --effects yaw:coulomb_friction,yaw:stiction \\\n"
@@ -127,10 +146,12 @@ def add_parser(subparsers):
         formatter_class=Formatter,
     )
     add_model_options(p)
-    p.add_argument("--sampler", choices=["nuts", "emcee", "laplace"], default="nuts",
+    p.add_argument("--sampler", choices=["nuts", "emcee", "laplace", "prior"], default="nuts",
                    help="sampler (default: nuts); 'laplace': independent draws of the Laplace "
                         "approximation at the MAP, minutes instead of hours for a hybrid model, "
-                        "trusted only when its Pareto k <= 0.7 (checked)")
+                        "trusted only when its Pareto k <= 0.7 (checked); 'prior': a prior "
+                        "predictive check, --draws draws from the priors alone, simulated and set "
+                        "against the record (DIR/prior.nc, summary.json with notes, bands.png)")
     p.add_argument("--data", default="experimental", metavar="experimental|FILE.csv",
                    help="record (default: experimental)")
     p.add_argument("--window", metavar="A:B", default=None,

@@ -1,5 +1,5 @@
 """Output: InferenceData (NetCDF) with the model, diagnostics and health checks, figures,
-the posterior study.
+the posterior study and the prior predictive check.
 
 Layer 7 (imports everything below it; only discovery and the CLI import it).
 """
@@ -17,8 +17,9 @@ from heli_uq.output.plots import plot_experiment as plot_experiment
 from heli_uq.output.plots import plot_simulation as plot_simulation
 from heli_uq.output.posterior_study import parameter_summary as parameter_summary
 from heli_uq.output.posterior_study import sample_posterior as sample_posterior
+from heli_uq.output.prior_check import prior_predictive_check as prior_predictive_check
 
 __all__ = ["convergence", "predictive_checks", "predictive_metrics", "summarize", "check_health",
            "load_posterior", "save_netcdf",
            "to_inference_data", "plot_bands", "plot_experiment", "plot_simulation",
-           "parameter_summary", "sample_posterior"]  # fmt: skip
+           "parameter_summary", "sample_posterior", "prior_predictive_check"]  # fmt: skip

@@ -191,7 +191,7 @@ def plot_experiment(exp) -> Figure:
 
 
 def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
-               title: str | None = None, health: str = "") -> Figure:
+               title: str | None = None, health: str = "", band: str = "predictive") -> Figure:
     """Posterior-predictive 50 % and 90 % bands for pitch and yaw, translucent over the data.
 
     Parameters
@@ -210,6 +210,8 @@ def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
         A failed health check, e.g. ``"UNCONVERGED"`` or ``"UNCONVERGED, unphysical"``:
         it leads the title and replaces the coverage claim.  Bands that leave the data's
         range are clipped to it (and the panel says so).
+    band : str, optional
+        What the bands are, in the legend (e.g. ``"prior predictive"``).
     """
     t = np.asarray(t, dtype=float)
     q = np.degrees(np.quantile(np.asarray(y_pred), [0.05, 0.25, 0.5, 0.75, 0.95], axis=0))
@@ -221,10 +223,10 @@ def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
         # as narrow as the data's line (13,100 samples), which would hide it underneath.
         ax.plot(t, obs[:, j], color="k", lw=0.6, label="measured")
         ax.fill_between(t, q[0, :, j], q[4, :, j], color=color, alpha=0.3, lw=0, zorder=3,
-                        label="90 % predictive band")
+                        label=f"90 % {band} band")
         ax.fill_between(t, q[1, :, j], q[3, :, j], color=color, alpha=0.4, lw=0, zorder=3,
-                        label="50 % predictive band")
-        ax.plot(t, q[2, :, j], color=color, lw=1.0, label="predictive median", zorder=4)
+                        label=f"50 % {band} band")
+        ax.plot(t, q[2, :, j], color=color, lw=1.0, label=f"{band} median", zorder=4)
         if test_mask is not None and np.any(test_mask):
             t_test = t[np.asarray(test_mask, bool)]
             ax.axvspan(t_test[0], t_test[-1], color="0.85", zorder=-1, label="test window")

@@ -32,6 +32,8 @@ Usage::
     python studies/sbc.py --replicates 100 --h-sd 0 --chains 1 --warmup 200 --draws 100 \\
         --x0-prior generator --workers 2 --out studies/results/sbc_v2
     python studies/sbc.py --out studies/results/sbc_v2 --plot
+    python studies/sbc.py --replicates 100 --h-sd 0 --chains 1 --warmup 200 --draws 100 \\
+        --x0-prior generator --effects yaw:quadratic_drag --out studies/results/sbc_drag_yaw
 """
 
 from __future__ import annotations
@@ -57,7 +59,8 @@ def _settings(args) -> SBCSettings:
                        chains=args.chains, warmup=args.warmup, draws=args.draws,
                        adapt_mass_matrix=args.adapt_mass_matrix, map_maxiter=args.map_maxiter,
                        x0_prior=args.x0_prior, ranks=args.ranks,
-                       thin_to_ess=not args.no_thin)  # fmt: skip
+                       thin_to_ess=not args.no_thin,
+                       effects=tuple(e for e in (args.effects or "").split(",") if e))  # fmt: skip
 
 
 def plot(out: pathlib.Path, fig: pathlib.Path, argv=None) -> dict:
@@ -89,6 +92,9 @@ def main(argv=None):
                          "package's model) or the generator's centre (a consistent SBC)")
     ap.add_argument("--adapt-mass-matrix", action="store_true",
                     help="also adapt the Laplace mass matrix in warm-up (default: keep it)")
+    ap.add_argument("--effects", default=None, metavar="AXIS:EFFECT,...",
+                    help="named effects added to the paper's model, their parameters drawn from "
+                         "their declared priors and ranked (e.g. yaw:quadratic_drag)")
     ap.add_argument("--only", type=int, nargs="*", help="run just these replicates")
     ap.add_argument("--ranks", type=int, default=99, help="most draws the truth is ranked among")
     ap.add_argument("--no-thin", action="store_true",

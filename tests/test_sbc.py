@@ -179,6 +179,35 @@ def test_thinning_to_the_ess_makes_autocorrelated_ranks_uniform():
     assert raw["quantities"]["q"]["coverage90_rank"] < 0.9 - 2 * COVERAGE_TOL
 
 
+def test_an_effect_is_drawn_from_its_declared_prior_and_ranked_and_a_directory_keeps_its_model(
+        tmp_path, monkeypatch):  # fmt: skip
+    """With ``effects``, the base parameters keep the study prior around Table 1 and the
+    effect's parameter its term's declared prior; a replicate's truth holds it, and the
+    sampled coordinates that are ranked include it.  A directory of the paper's model
+    (settings written before ``effects`` existed count as none) refuses replicates of
+    another model."""
+    from heli_uq.probability import make_problem
+
+    settings = SBCSettings(**{**TINY.to_dict(), "effects": ["yaw:quadratic_drag"]})
+    assert settings.effects == ("yaw:quadratic_drag",)
+    assert settings.to_dict()["effects"] == ["yaw:quadratic_drag"]
+    model = settings.model
+    priors = sbc.study_priors(TINY.prior_sd, TINY.h_sd, TINY.x0_prior, model)
+    assert priors.params["c_yaw"] == model.parameter("c_yaw").prior
+    assert priors.params["m"].kind == "lognormal" and priors.params["m"].b == TINY.prior_sd
+    truth, _, _, rec, _ = sbc.draw_replicate(0, priors, TINY.duration, model)
+    assert truth["c_yaw"] >= 0.0 and rec.n == round(TINY.duration / 0.01)
+    coords = make_problem(rec, model=model, priors=priors, error="iid").coords
+    assert "c_yaw" in coords.free and np.all(np.isfinite(coords.from_physical(truth)))
+
+    monkeypatch.setattr(sbc, "run_replicate", _fake_replicate)
+    run_sbc(tmp_path, TINY, 1, scheduler="serial")
+    old = {k: v for k, v in TINY.to_dict().items() if k != "effects"}
+    (tmp_path / sbc.SETTINGS_FILE).write_text(json.dumps(old))
+    with pytest.raises(ParameterError, match=r"effects \(stored \[\], requested \['yaw:quadratic_drag'\]\)"):
+        run_sbc(tmp_path, settings, 2, scheduler="serial")
+
+
 def test_settings_of_an_older_directory_come_from_its_replicates(tmp_path, monkeypatch):
     """A directory written before settings.json existed is checked against the settings
     recorded in its replicates."""
@@ -257,6 +286,8 @@ def test_exactly_uniform_ranks_pass_also_when_bins_do_not_divide_the_ranks():
 def test_bad_settings_and_requests_are_refused(tmp_path):
     with pytest.raises(ParameterError, match="x0_prior"):
         SBCSettings(x0_prior="prior")
+    with pytest.raises(ParameterError, match="unknown effect 'backlash'"):
+        SBCSettings(effects=("yaw:backlash",))
     with pytest.raises(ParameterError, match="ranks"):
         SBCSettings(ranks=0)
     with pytest.raises(ParameterError, match="workers"):

@@ -1,7 +1,8 @@
 """Simulation-based calibration (SBC) of the package's NUTS posterior on synthetic records.
 
 For each replicate ``r``: draw the paper's 12 parameters from the study prior (log-normal,
-sigma_log ``prior_sd`` around Table 1; h ~ normal(0, ``h_sd``) or fixed at 0; g fixed),
+sigma_log ``prior_sd`` around Table 1; h ~ normal(0, ``h_sd``) or fixed at 0; g fixed)
+and the parameters of any named effects (``SBCSettings.effects``) from their declared priors,
 one residual scale [rad] for both angles from the model's ``sigma`` prior
 (:data:`heli_uq.probability.priors.SIGMA_PRIOR`), simulate a ``duration`` s record with
 random step inputs (:func:`heli_uq.simulation.synthetic_experiment`) and iid noise, run
@@ -48,7 +49,7 @@ from heli_uq.executor import TaskFailed, check_scheduler, run_tasks
 from heli_uq.inference import prepare_start, run_nuts
 from heli_uq.io import atomic_write_text
 from heli_uq.log import progress_log
-from heli_uq.model import TABLE1, HeliModel, Prior
+from heli_uq.model import TABLE1, HeliModel, Prior, build_model
 from heli_uq.probability import PriorSet, make_problem
 from heli_uq.probability.priors import SIGMA_PRIOR, X0_ANGLE_SD, X0_RATE_SD
 from heli_uq.simulation import SYNTHETIC_X0, synthetic_experiment
@@ -72,7 +73,7 @@ FAILED_FILE = "failed.json"
 #: MAP starts per replicate.
 N_STARTS = 2
 #: Settings added later, with the values older run directories were made with.
-LEGACY_SETTINGS = {"thin_to_ess": False}
+LEGACY_SETTINGS = {"thin_to_ess": False, "effects": []}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -100,6 +101,9 @@ class SBCSettings:
         Most draws the truth is ranked among (L; fewer if ``chains * draws`` is smaller).
     thin_to_ess : bool
         Rank among draws thinned to their ESS (:func:`~heli_uq.calibration.ranks.thinned_ranks`).
+    effects : tuple of str
+        Named effects added to the paper's model (``"yaw:quadratic_drag"``, ...): their
+        parameters are drawn from the priors their terms declare and ranked like the others.
     """
 
     duration: float = 5.0
@@ -113,8 +117,11 @@ class SBCSettings:
     x0_prior: str = "data"
     ranks: int = 99
     thin_to_ess: bool = True
+    effects: tuple = ()
 
     def __post_init__(self):
+        object.__setattr__(self, "effects", tuple(self.effects))
+        build_model(list(self.effects))  # an unknown effect is refused here, by name
         for name in ("duration", "prior_sd"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
@@ -133,20 +140,27 @@ class SBCSettings:
 
     def to_dict(self) -> dict:
         """The settings as a JSON-ready dict."""
-        return dataclasses.asdict(self)
+        return {**dataclasses.asdict(self), "effects": list(self.effects)}
+
+    @property
+    def model(self) -> HeliModel:
+        """The paper's model with :attr:`effects`."""
+        return build_model(list(self.effects)) if self.effects else MODEL
 
 
-def study_priors(prior_sd: float, h_sd: float, x0_prior: str = "data") -> PriorSet:
+def study_priors(prior_sd: float, h_sd: float, x0_prior: str = "data",
+                 model: HeliModel = MODEL) -> PriorSet:  # fmt: skip
     """The study prior: log-normal (sigma_log ``prior_sd``) around Table 1 for every
     parameter of positive or non-negative support, ``normal(0, h_sd)`` [m] (or fixed at 0
     when ``h_sd`` is 0) for the parameters of real support (the body-axis offset h), fixed
-    parameters (g) as the model declares them; with ``x0_prior="generator"`` the initial
-    angles' prior is ``normal(SYNTHETIC_X0, X0_ANGLE_SD)`` instead of the data-centred
-    default."""
+    parameters (g) as the model declares them; an effect's parameters (``model`` beyond
+    the paper's) keep the priors their terms declare; with ``x0_prior="generator"`` the
+    initial angles' prior is ``normal(SYNTHETIC_X0, X0_ANGLE_SD)`` instead of the
+    data-centred default."""
     changes = {}
-    for name in MODEL.names:
-        declared = MODEL.parameter(name)
-        if declared.prior.kind == "fixed":
+    for name in model.names:
+        declared = model.parameter(name)
+        if declared.prior.kind == "fixed" or name not in TABLE1:
             continue
         if declared.support == "real":
             changes[name] = Prior("normal", 0.0, h_sd) if h_sd > 0 else Prior("fixed", 0.0)
@@ -155,10 +169,10 @@ def study_priors(prior_sd: float, h_sd: float, x0_prior: str = "data") -> PriorS
     if x0_prior == "generator":
         changes.update({n: Prior("normal", SYNTHETIC_X0[i], X0_ANGLE_SD)
                         for i, n in enumerate(X0_ANGLES)})  # fmt: skip
-    return PriorSet.default(MODEL).updated(MODEL, changes, where="sbc prior")
+    return PriorSet.default(model).updated(model, changes, where="sbc prior")
 
 
-def draw_replicate(r: int, priors: PriorSet, duration: float):
+def draw_replicate(r: int, priors: PriorSet, duration: float, model: HeliModel = MODEL):
     """Truth and record of replicate ``r``, redrawn until the simulation is finite.
 
     Returns
@@ -176,13 +190,13 @@ def draw_replicate(r: int, priors: PriorSet, duration: float):
     """
     rng = np.random.default_rng([2026, r])
     for attempt in range(MAX_REDRAWS):
-        truth = {n: float(priors.params[n].sample(rng)) for n in MODEL.names}
+        truth = {n: float(priors.params[n].sample(rng)) for n in model.names}
         sigma = float(SIGMA_PRIOR.sample(rng))
         x0 = np.array(SYNTHETIC_X0) + rng.normal(size=4) * [X0_ANGLE_SD, X0_ANGLE_SD,
                                                            X0_RATE_SD, X0_RATE_SD]
         try:
             rec = synthetic_experiment(truth, x0, duration=duration, noise_std=(sigma, sigma),
-                                       seed=int(rng.integers(2**31)), model=MODEL)
+                                       seed=int(rng.integers(2**31)), model=model)
         except DataFormatError:
             continue
         if np.all(np.abs(rec.y) < MAX_ANGLE):
@@ -218,9 +232,10 @@ def run_replicate(task) -> dict:
     r, settings = task
     t_rep = time.perf_counter()
     try:
-        priors = study_priors(settings.prior_sd, settings.h_sd, settings.x0_prior)
-        truth, sigma, x0, rec, redraws = draw_replicate(r, priors, settings.duration)
-        problem = make_problem(rec, model=MODEL, priors=priors, error="iid")
+        model = settings.model
+        priors = study_priors(settings.prior_sd, settings.h_sd, settings.x0_prior, model)
+        truth, sigma, x0, rec, redraws = draw_replicate(r, priors, settings.duration, model)
+        problem = make_problem(rec, model=model, priors=priors, error="iid")
         coords = problem.coords
         z_true = coords.from_physical(truth)
         names = coords.sampled_names

@@ -33,7 +33,6 @@ Layer 8 (imports everything below it except discovery and design).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import pathlib
 import tempfile
@@ -44,12 +43,13 @@ import jax
 import numpy as np
 
 from heli_uq.calibration.ranks import thinned_ranks
+from heli_uq.calibration.settings import MODEL, SETTINGS_FILE, SBCSettings, check_settings
 from heli_uq.errors import DataFormatError, ParameterError
 from heli_uq.executor import TaskFailed, check_scheduler, run_tasks
 from heli_uq.inference import prepare_start, run_nuts
 from heli_uq.io import atomic_write_text
 from heli_uq.log import progress_log
-from heli_uq.model import TABLE1, HeliModel, Prior, build_model
+from heli_uq.model import TABLE1, HeliModel, Prior
 from heli_uq.probability import PriorSet, make_problem
 from heli_uq.probability.priors import SIGMA_PRIOR, X0_ANGLE_SD, X0_RATE_SD
 from heli_uq.simulation import SYNTHETIC_X0, synthetic_experiment
@@ -57,8 +57,6 @@ from heli_uq.simulation import SYNTHETIC_X0, synthetic_experiment
 __all__ = ["SBCSettings", "study_priors", "draw_replicate", "run_replicate", "run_sbc",
            "load_replicates", "SETTINGS_FILE", "FAILED_FILE", "COVERAGE_LEVEL"]  # fmt: skip
 
-#: The model of the study: the paper's (12 parameters, no effects).
-MODEL = HeliModel()
 #: Initial-state entries whose prior ``x0_prior="generator"`` centres on SYNTHETIC_X0.
 X0_ANGLES = ("theta0", "psi0")
 #: Prior draws tried per replicate before giving up (a draw whose simulation fails, or
@@ -66,88 +64,10 @@ X0_ANGLES = ("theta0", "psi0")
 MAX_REDRAWS = 100
 MAX_ANGLE = 50.0
 COVERAGE_LEVEL = 0.90  # central posterior interval whose coverage of the truth is recorded
-#: The settings of a run directory (a rerun under other settings is refused).
-SETTINGS_FILE = "settings.json"
 #: Replicates whose task raised, ``{"r": "<Type>: <message>"}`` (absent when none did).
 FAILED_FILE = "failed.json"
 #: MAP starts per replicate.
 N_STARTS = 2
-#: Settings added later, with the values older run directories were made with.
-LEGACY_SETTINGS = {"thin_to_ess": False, "effects": []}
-
-
-@dataclasses.dataclass(frozen=True)
-class SBCSettings:
-    """What a replicate is: the generator, the prior and the sampler.
-
-    Attributes
-    ----------
-    duration : float
-        Length of each synthetic record [s] (sample time 0.01 s).
-    prior_sd : float
-        sigma_log of the log-normal priors around Table 1.
-    h_sd : float
-        Prior sd of h [m]; 0 fixes h = 0.
-    chains, warmup, draws : int
-        NUTS chains; warm-up and kept iterations per chain.
-    adapt_mass_matrix : bool
-        Adapt the mass matrix in warm-up (False: keep the Laplace covariance).
-    map_maxiter : int
-        L-BFGS steps before the Newton polish of the MAP (0: Newton only).
-    x0_prior : {"data", "generator"}
-        Centre of the initial-angle prior: the first measurement (the package's model) or
-        the generator's centre (a consistent SBC).
-    ranks : int
-        Most draws the truth is ranked among (L; fewer if ``chains * draws`` is smaller).
-    thin_to_ess : bool
-        Rank among draws thinned to their ESS (:func:`~heli_uq.calibration.ranks.thinned_ranks`).
-    effects : tuple of str
-        Named effects added to the paper's model (``"yaw:quadratic_drag"``, ...): their
-        parameters are drawn from the priors their terms declare and ranked like the others.
-    """
-
-    duration: float = 5.0
-    prior_sd: float = 0.1
-    h_sd: float = 0.005
-    chains: int = 2
-    warmup: int = 200
-    draws: int = 150
-    adapt_mass_matrix: bool = False
-    map_maxiter: int = 0
-    x0_prior: str = "data"
-    ranks: int = 99
-    thin_to_ess: bool = True
-    effects: tuple = ()
-
-    def __post_init__(self):
-        object.__setattr__(self, "effects", tuple(self.effects))
-        build_model(list(self.effects))  # an unknown effect is refused here, by name
-        for name in ("duration", "prior_sd"):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
-                raise ParameterError(f"{name}: expected a positive number, found {value!r}")
-        if not (isinstance(self.h_sd, int | float) and np.isfinite(self.h_sd) and self.h_sd >= 0):
-            raise ParameterError(f"h_sd: expected a number >= 0, found {self.h_sd!r}")
-        for name, low in (("chains", 1), ("warmup", 0), ("draws", 1), ("map_maxiter", 0),
-                          ("ranks", 1)):  # fmt: skip
-            value = getattr(self, name)
-            if not (isinstance(value, int) and not isinstance(value, bool) and value >= low):
-                raise ParameterError(f"{name}: expected an integer >= {low}, found {value!r}")
-        if not isinstance(self.thin_to_ess, bool):
-            raise ParameterError(f"thin_to_ess: expected True or False, found {self.thin_to_ess!r}")
-        if self.x0_prior not in ("data", "generator"):
-            raise ParameterError(f"x0_prior: expected 'data' or 'generator', found {self.x0_prior!r}")
-
-    def to_dict(self) -> dict:
-        """The settings as a JSON-ready dict."""
-        return {**dataclasses.asdict(self), "effects": list(self.effects)}
-
-    @property
-    def model(self) -> HeliModel:
-        """The paper's model with :attr:`effects`."""
-        return build_model(list(self.effects)) if self.effects else MODEL
-
-
 def study_priors(prior_sd: float, h_sd: float, x0_prior: str = "data",
                  model: HeliModel = MODEL) -> PriorSet:  # fmt: skip
     """The study prior: log-normal (sigma_log ``prior_sd``) around Table 1 for every
@@ -278,38 +198,6 @@ def _rep_path(out: pathlib.Path, r: int) -> pathlib.Path:
     return out / f"rep_{r:04d}.json"
 
 
-def _stored_settings(out: pathlib.Path) -> tuple[dict, pathlib.Path] | tuple[None, None]:
-    """The settings a directory was run with: ``settings.json``, else those recorded in its
-    first replicate (directories written before ``settings.json`` existed)."""
-    path = out / SETTINGS_FILE
-    if path.exists():
-        return json.loads(path.read_text()), path
-    for rep in sorted(out.glob("rep_*.json")):
-        stored = json.loads(rep.read_text()).get("settings")
-        if stored is not None:
-            return stored, rep
-    return None, None
-
-
-def _check_settings(out: pathlib.Path, settings: SBCSettings) -> None:
-    """Refuse to add replicates to ``out`` under settings other than its own; record them
-    on the first run."""
-    stored, where = _stored_settings(out)
-    now = settings.to_dict()
-    stored = None if stored is None else {**LEGACY_SETTINGS, **stored}
-    if stored is None:
-        atomic_write_text(out / SETTINGS_FILE, json.dumps(now, indent=1))
-        return
-    differ = [f"{k} (stored {stored[k]!r}, requested {now[k]!r})" for k in now
-              if k in stored and stored[k] != now[k]]  # fmt: skip
-    if differ:
-        raise ParameterError(f"{out}: the replicates there were run with other settings ({where.name}): "
-                             f"{'; '.join(differ)}; use another output directory or the same "
-                             "settings")  # fmt: skip
-    if where.name != SETTINGS_FILE:
-        atomic_write_text(out / SETTINGS_FILE, json.dumps({**stored, **now}, indent=1))
-
-
 def load_replicates(out_dir, replicates: Iterable[int] | None = None) -> list[dict]:
     """The stored replicates of ``out_dir`` (all, or those of ``replicates``), by index.
 
@@ -375,7 +263,7 @@ def run_sbc(out_dir, settings: SBCSettings, replicates: int | Iterable[int], *, 
         raise ParameterError(f"workers: expected an integer >= 1, found {workers!r}")
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    _check_settings(out, settings)
+    check_settings(out, settings)
     check_scheduler(scheduler)
     failed_path = out / FAILED_FILE
     failed = json.loads(failed_path.read_text()) if failed_path.exists() else {}

@@ -191,7 +191,8 @@ def plot_experiment(exp) -> Figure:
 
 
 def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
-               title: str | None = None, health: str = "", band: str = "predictive") -> Figure:
+               title: str | None = None, health: str = "", band: str = "predictive",
+               examples=None) -> Figure:
     """Posterior-predictive 50 % and 90 % bands for pitch and yaw, translucent over the data.
 
     Parameters
@@ -212,6 +213,9 @@ def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
         range are clipped to it (and the panel says so).
     band : str, optional
         What the bands are, in the legend (e.g. ``"prior predictive"``).
+    examples : array, shape (K, N, 2), optional
+        Single draws (e.g. simulated angles [rad]) drawn as thin lines over the bands:
+        where the bands span everything, they show what one draw does.
     """
     t = np.asarray(t, dtype=float)
     q = np.degrees(np.quantile(np.asarray(y_pred), [0.05, 0.25, 0.5, 0.75, 0.95], axis=0))
@@ -227,6 +231,9 @@ def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
         ax.fill_between(t, q[1, :, j], q[3, :, j], color=color, alpha=0.4, lw=0, zorder=3,
                         label=f"50 % {band} band")
         ax.plot(t, q[2, :, j], color=color, lw=1.0, label=f"{band} median", zorder=4)
+        for k, draw in enumerate(np.degrees(np.asarray(examples if examples is not None else []))):
+            ax.plot(t, draw[:, j], color="0.35", lw=0.5, alpha=0.7, zorder=4,
+                    label=f"{len(examples)} single draws" if k == 0 else None)  # fmt: skip
         if test_mask is not None and np.any(test_mask):
             t_test = t[np.asarray(test_mask, bool)]
             ax.axvspan(t_test[0], t_test[-1], color="0.85", zorder=-1, label="test window")

@@ -56,6 +56,8 @@ UNPHYSICAL_NOTE = 0.25
 COVERAGE_NOTE = 0.8
 #: Prior predictive p-values outside ``[P_TAIL, 1 - P_TAIL]`` are notes.
 P_TAIL = 0.01
+#: Solved draws drawn one by one over the bands of ``bands.png``.
+EXAMPLES = 8
 #: The thresholds of the notes, as stored in ``summary.json``.
 NOTE_RULES = {"failed_above": FAILED_NOTE, "unphysical_above": UNPHYSICAL_NOTE,
               "coverage90_below": COVERAGE_NOTE, "p_value_tail": P_TAIL}  # fmt: skip
@@ -178,7 +180,7 @@ def prior_predictive_check(record: Experiment, out_dir, *, model: HeliModel | No
     cov = summary["coverage90"] or None
     fig = plot_bands(problem.t, y_pred[solved] if np.any(solved) else y_pred, problem.y,
                      train_mask=masks["train"], test_mask=masks.get("test"), coverage=cov,
-                     band="prior predictive",
+                     band="prior predictive", examples=y_sim[solved][:EXAMPLES],
                      title=(f"Prior predictive ({draws} draws, {100 * summary['failed']:.0f} % failed, "
                             f"{100 * summary['unphysical']:.0f} % unphysical; {problem.model.label}): "
                             f"{pathlib.Path(problem.source).name}"))  # fmt: skip

@@ -8,12 +8,15 @@ import numpy as np
 import pytest
 
 from heli_uq.cli.main import main
-from heli_uq.model import HeliModel
+from heli_uq.inference.start import MAX_SUBSTEPS
+from heli_uq.model import TABLE1, HeliModel, build_model
 from heli_uq.model.prior import Prior
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.output.prior_check import COVERAGE_NOTE, prior_draws, prior_predictive_check
 from heli_uq.probability import PriorSet, make_problem
 from heli_uq.simulation import SYNTHETIC_PARAMS, SYNTHETIC_X0, synthetic_experiment
+from heli_uq.simulation.solver import STABLE_STEP
+from heli_uq.simulation.stiffness import stiffness_rates
 
 NOISE = 0.002  # rad: the synthetic record's noise sd on both angles
 #: Draws of the moment test, and how many standard errors a mean may be off.
@@ -47,9 +50,9 @@ def test_prior_draws_follow_every_prior_in_its_coordinate():
     np.testing.assert_allclose(draws["rho"], np.exp(-problem.dt / draws["tau"]))
 
 
-def _priors_at(values: dict) -> PriorSet:
+def _priors_at(values: dict, model: HeliModel | None = None) -> PriorSet:
     """Every parameter, the initial state and the noise fixed: the prior is one point."""
-    model = HeliModel()
+    model = HeliModel() if model is None else model
     changes = {n: Prior("fixed", v) for n, v in values.items() if n in model.names}
     changes.update({n: Prior("fixed", v) for n, v in zip(X0_NAMES, SYNTHETIC_X0)})
     changes.update({"sigma_theta": Prior("fixed", NOISE), "sigma_psi": Prior("fixed", NOISE)})
@@ -76,6 +79,23 @@ def test_a_prior_at_the_truth_covers_ninety_percent_and_a_wrong_one_is_noted(tmp
     over = dict(truth, K_theta_theta=3.0 * truth["K_theta_theta"])
     _, pitch = prior_predictive_check(record, tmp_path / "pitch", priors=_priors_at(over), draws=100)
     assert pitch["unphysical"] == 1.0 and any("physical range" in n for n in pitch["notes"])
+
+
+def test_stiff_prior_draws_raise_the_substeps_up_to_the_cap_and_past_it_are_noted(tmp_path):
+    """A yaw friction whose rate needs 3 substeps gets them (no note); one that needs more
+    than MAX_SUBSTEPS gets the cap, and every draw is noted as past RK4's limit."""
+    model = build_model(["yaw:coulomb_friction"])
+    record = synthetic_experiment(duration=2.0, seed=5, noise_std=(NOISE, NOISE))
+    thetas = record.y[:, 0]
+    per_level = stiffness_rates(model, {"F_c_yaw": np.array([1.0])}, fixed=dict(TABLE1, F_c_yaw=1.0),
+                                thetas=thetas)[0]  # fmt: skip
+    for need, cap in ((3, False), (3 * MAX_SUBSTEPS, True)):
+        level = 0.9 * need * STABLE_STEP / (per_level * record.dt)  # rate h just inside `need` substeps
+        priors = _priors_at(dict(TABLE1, F_c_yaw=level, F_s_yaw=0.0), model)
+        _, out = prior_predictive_check(record, tmp_path / str(need), model=model, priors=priors, draws=4)
+        assert out["substeps"] == (MAX_SUBSTEPS if cap else need), out["substeps"]
+        assert out["stiffness"]["beyond"] == (4 if cap else 0)
+        assert any("stiffer than RK4" in n for n in out["notes"]) == cap
 
 
 def test_cli_prior_check_writes_the_draws_summary_and_figure(tmp_path, capsys):

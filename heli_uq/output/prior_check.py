@@ -10,6 +10,9 @@ over the whole span with the problem's model and substeps
 the record is set against the draws:
 
 * ``failed``: share of draws whose solve fails (the posterior gives them no mass);
+* ``substeps``, ``stiffness``: the solver's substeps, raised to cover the stiffest draw
+  up to :data:`~heli_uq.inference.start.MAX_SUBSTEPS`, and the draws still past RK4's
+  stability limit (:func:`~heli_uq.simulation.stiffness.stiffness_check`; noted);
 * ``unphysical``: share whose pitch leaves +-90 deg or whose states blow up, failed
   draws included (:func:`heli_uq.simulation.physical.unphysical_draws`);
 * ``coverage90``: per window and angle, the share of the record's samples inside the
@@ -36,6 +39,7 @@ import arviz as az
 import numpy as np
 
 from heli_uq.data.record import Experiment
+from heli_uq.inference.start import MAX_SUBSTEPS
 from heli_uq.io import atomic_write_text
 from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.tables import X0_NAMES
@@ -44,6 +48,7 @@ from heli_uq.output.plots import plot_bands, save_figure
 from heli_uq.probability.priors import OUTPUTS, PriorSet
 from heli_uq.probability.problem import make_problem
 from heli_uq.simulation.physical import unphysical_draws
+from heli_uq.simulation.stiffness import stiffness_check, substeps_covering
 
 __all__ = ["prior_draws", "prior_predictive_check", "NOTE_RULES"]
 
@@ -80,6 +85,26 @@ def prior_draws(problem, n: int, seed: int = 0) -> dict:
     return out
 
 
+def _covering_substeps(problem, samples: dict):
+    """``(problem, stiffness)``: the problem with the substeps that cover the stiffest
+    draw (at most :data:`~heli_uq.inference.start.MAX_SUBSTEPS`), and
+    :func:`~heli_uq.simulation.stiffness.stiffness_check` of the draws at them (None
+    without stiff terms)."""
+    n = samples["sigma"].shape[1]
+    draws = {k: np.ravel(samples[k]) if p.free else np.full(n, p.a) for k, p in problem.priors.params.items()}
+    thetas = problem.y[: problem.n_train, 0]
+
+    def check(substeps: int):
+        return stiffness_check(problem.model, draws, substeps, problem.dt, thetas=thetas)
+
+    first = check(problem.substeps)
+    if first is None:
+        return problem, None
+    need = substeps_covering([first["rate_max"]], problem.dt)
+    problem = problem.with_substeps(min(MAX_SUBSTEPS, max(problem.substeps, need)))
+    return problem, check(problem.substeps)
+
+
 def _coverage(band, y_obs, windows: dict) -> dict:
     inside = (band[0] <= y_obs) & (y_obs <= band[1])
     return {w: {o: float(np.mean(inside[a:b, j])) for j, o in enumerate(OUTPUTS)}
@@ -99,6 +124,11 @@ def _notes(summary: dict) -> list[str]:
     notes = []
     if summary["failed"] > FAILED_NOTE:
         notes.append(f"{100 * summary['failed']:.0f} % of the prior draws fail the solver")
+    stiff = summary["stiffness"]
+    if stiff is not None and stiff["beyond"] > 0:
+        share = 100 * stiff["beyond"] / stiff["of"]
+        notes.append(f"{share:.0f} % of the prior draws are stiffer than RK4 follows at "
+                     f"{summary['substeps']} substeps: their simulations may be wrong")  # fmt: skip
     if summary["unphysical"] > UNPHYSICAL_NOTE:
         notes.append(f"{100 * summary['unphysical']:.0f} % of the prior draws leave the physical range "
                      "(pitch beyond +-90 deg): the priors allow motions the rig cannot make")  # fmt: skip
@@ -142,6 +172,7 @@ def prior_predictive_check(record: Experiment, out_dir, *, model: HeliModel | No
     out.mkdir(parents=True, exist_ok=True)
     problem = make_problem(record, train, test, model=model, priors=priors, error=error)
     samples = prior_draws(problem, draws, seed)
+    problem, stiffness = _covering_substeps(problem, samples)
     _, y_sim, y_pred = simulate_draws(problem, samples, np.arange(draws), seed=seed, want_ll=False)
     failed = ~np.all(np.isfinite(y_sim), axis=(1, 2))
     solved = ~failed
@@ -149,7 +180,8 @@ def prior_predictive_check(record: Experiment, out_dir, *, model: HeliModel | No
     summary = {"sampler": "prior", "draws": int(draws), "error_model": problem.error,
                "model": problem.model.describe(), "model_label": problem.model.label,
                "failed": float(np.mean(failed)),
-               "unphysical": float(np.mean(unphysical_draws(y_sim)))}  # fmt: skip
+               "unphysical": float(np.mean(unphysical_draws(y_sim))),
+               "substeps": problem.substeps, "stiffness": stiffness}  # fmt: skip
     if np.any(solved):
         band = np.quantile(y_pred[solved], [0.05, 0.95], axis=0)
         summary["coverage90"] = _coverage(band, problem.y, windows)

@@ -179,6 +179,19 @@ def test_thinning_to_the_ess_makes_autocorrelated_ranks_uniform():
     assert raw["quantities"]["q"]["coverage90_rank"] < 0.9 - 2 * COVERAGE_TOL
 
 
+def test_anti_correlated_draws_are_not_thinned():
+    """NUTS draws can be anti-correlated (a replicate of the drag SBC: ESS 2100 of 100
+    draws in one coordinate); numpyro's ESS estimate of strongly anti-correlated draws is
+    negative, which must not thin them to one draw: they are ranked as they are."""
+    rng = np.random.default_rng(7)
+    x = np.zeros(100)
+    for i in range(1, x.size):
+        x[i] = -0.95 * x[i - 1] + rng.normal()
+    ranks, big_l, thin, ess = thinned_ranks(x[None, :, None], np.array([0.0]), 99)
+    assert thin == 1 and big_l == 99 and ess[0] == x.size
+    assert ranks[0] == np.sum(x[:99] < 0.0)
+
+
 def test_an_effect_is_drawn_from_its_declared_prior_and_ranked_and_a_directory_keeps_its_model(
         tmp_path, monkeypatch):  # fmt: skip
     """With ``effects``, the base parameters keep the study prior around Table 1 and the

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from heli_uq.calibration.ranks import RANK_BINS, rank_bins
+from heli_uq.calibration.ranks import RANK_BINS, pooled_rank_counts
 from heli_uq.figure import new_figure, save_figure
 
 __all__ = ["plot_ranks"]
@@ -25,7 +25,8 @@ def plot_ranks(reps: list[dict], path, bins: int = RANK_BINS):
     path : path
         Destination ``.png`` (its directory is created).
     bins : int
-        Histogram bins over ranks ``0..L``.
+        Histogram bins over ranks ``0..L`` (fewer when a replicate ranks among fewer
+        draws: :func:`~heli_uq.calibration.ranks.pooled_rank_counts`).
 
     Returns
     -------
@@ -35,25 +36,29 @@ def plot_ranks(reps: list[dict], path, bins: int = RANK_BINS):
     import pathlib
 
     names = reps[0]["names"]
-    big_l = min(r["L"] for r in reps)
+    ls = sorted({r["L"] for r in reps})
     n = len(reps)
-    edges, prob = rank_bins(big_l, bins)
     tail = (1 - BAND) / 2
-    lo, hi = stats.binom.ppf([tail, 1 - tail], n, prob.mean())
     cols = 4
     rows = -(-len(names) // cols)
     fig = new_figure((3.2 * cols, 2.4 * rows))
     axes = fig.subplots(rows, cols, squeeze=False)
     for ax, name in zip(axes.flat, names):
-        ranks = np.array([min(r["ranks"][name], big_l) for r in reps])
-        ax.axhspan(lo, hi, color="0.85", label=f"{BAND:.0%} band (uniform)")
-        ax.axhline(n * prob.mean(), color="0.5", lw=0.8)
-        ax.hist(ranks, bins=edges, color="C0", edgecolor="white", label="rank of truth")
+        # each replicate's rank binned on its own 0..L, as the chi-square test does
+        counts, expected = pooled_rank_counts(reps, name, bins)
+        x = (np.arange(counts.size) + 0.5) / counts.size
+        lo, hi = stats.binom.ppf(np.array([[tail], [1 - tail]]), n, expected / n)
+        ax.bar(x, hi - lo, bottom=lo, width=1.0 / counts.size, color="0.85",
+               label=f"{BAND:.0%} band (uniform)")  # fmt: skip
+        ax.step(np.r_[0.0, x + 0.5 / counts.size], np.r_[expected[0], expected], color="0.5", lw=0.8)
+        ax.bar(x, counts, width=0.9 / counts.size, color="C0", label="rank of truth")
         ax.set_title(name, fontsize=9)
-        ax.set_xlabel(f"rank among {big_l} draws")
+        ax.set_xlim(0.0, 1.0)
+        ax.set_xlabel("rank / (L + 1)" + (f", L = {ls[0]}" if len(ls) == 1 else f", L = {ls[0]}..{ls[-1]}"))
         ax.set_ylabel("replicates")
         cov = float(np.mean([r["covered90"][name] for r in reps]))
-        ax.text(0.02, 0.95, f"90% cov {cov:.0%}", transform=ax.transAxes, fontsize=8, va="top")
+        ax.text(0.02, 0.95, f"90% cov {cov:.0%}", transform=ax.transAxes, fontsize=8, va="top", zorder=5,
+                bbox={"facecolor": "white", "alpha": 0.8, "linewidth": 0})  # fmt: skip
     spare = list(axes.flat)[len(names):]
     for ax in spare:
         ax.axis("off")

@@ -13,8 +13,8 @@ from scipy import stats
 from heli_uq.errors import ParameterError
 from heli_uq.probability.priors import X0_ANGLE_SD
 
-__all__ = ["rank_bins", "thinned_ranks", "rank_covered", "expected_interval_coverage", "summarise",
-           "RANK_BINS"]  # fmt: skip
+__all__ = ["rank_bins", "pooled_rank_counts", "thinned_ranks", "rank_covered", "expected_rank_coverage",
+           "expected_interval_coverage", "summarise", "RANK_BINS"]  # fmt: skip
 
 #: Bins of the rank histograms (chi-square test and figure).
 RANK_BINS = 10
@@ -34,6 +34,20 @@ def rank_bins(big_l: int, bins: int = RANK_BINS) -> tuple[np.ndarray, np.ndarray
     edges = np.linspace(0, big_l + 1, bins + 1)
     prob = np.histogram(np.arange(big_l + 1), edges)[0] / (big_l + 1)
     return edges, prob
+
+
+def pooled_rank_counts(reps: list[dict], name: str, bins: int = RANK_BINS) -> tuple[np.ndarray, np.ndarray]:
+    """``(counts, expected)`` of the truth's rank of ``name`` over the replicates, each
+    replicate's rank binned on its own ``0..L`` (``L`` varies when draws are thinned to
+    their ESS) into ``min(bins, smallest L + 1)`` bins; ``expected``: the counts of
+    uniform ranks.  The chi-square test and the figure use both."""
+    bins = min([bins] + [r["L"] + 1 for r in reps])
+    counts, expected = np.zeros(bins), np.zeros(bins)
+    for r in reps:
+        edges, prob = rank_bins(r["L"], bins)
+        counts += np.histogram([r["ranks"][name]], edges)[0]
+        expected += prob
+    return counts, expected
 
 
 def thinned_ranks(draws: np.ndarray, truth: np.ndarray, max_ranks: int, *, thin_to_ess: bool = True):
@@ -57,11 +71,15 @@ def thinned_ranks(draws: np.ndarray, truth: np.ndarray, max_ranks: int, *, thin_
         Draws ranked among.
     thin : int
     ess : ndarray, shape (d,)
-        Effective sample size of each coordinate's draws.
+        Effective sample size of each coordinate's draws (numpyro's estimate; the number
+        of draws where that estimate is not positive).
     """
     draws = np.asarray(draws, dtype=float)
-    ess = np.asarray(effective_sample_size(draws), dtype=float).reshape(-1)
     flat = draws.reshape(-1, draws.shape[-1])
+    ess = np.asarray(effective_sample_size(draws), dtype=float).reshape(-1)
+    # numpyro's estimate turns negative for strongly anti-correlated draws (the summed
+    # autocorrelations go below -1/2): they need no thinning, so count them as independent
+    ess = np.where(np.isfinite(ess) & (ess > 0), ess, float(flat.shape[0]))
     thin = max(1, flat.shape[0] // max_ranks)
     if thin_to_ess:
         thin = max(thin, int(np.ceil(flat.shape[0] / max(float(np.min(ess)), 1.0))))
@@ -82,6 +100,14 @@ def rank_covered(rank: int, big_l: int, level: float = 0.9) -> bool:
     """
     k = int(np.floor((big_l + 1) * (1 - level) / 2 + 1e-9))
     return bool(k <= rank <= big_l - k)
+
+
+def expected_rank_coverage(big_l: int, level: float = 0.9) -> float:
+    """Probability that :func:`rank_covered` holds for a uniform rank on ``0..big_l``:
+    ``(big_l + 1 - 2 k) / (big_l + 1)``, ``level`` or more (1 for ``big_l < 9`` at 0.9,
+    where no rank is outside the central 90 %)."""
+    k = int(np.floor((big_l + 1) * (1 - level) / 2 + 1e-9))
+    return (big_l + 1 - 2 * k) / (big_l + 1)
 
 
 def expected_interval_coverage(n: int, level: float = 0.9) -> float:
@@ -112,8 +138,10 @@ def summarise(reps: list[dict], bins: int = RANK_BINS) -> dict:
         ``replicates``, ``L`` (smallest of the replicates; larger ranks are clipped to it),
         ``quantities``: name -> ``coverage90`` (fraction of replicates whose central 90 %
         interval of the draws covers the truth), ``coverage90_rank`` (fraction whose rank
-        lies in the central 90 % of ranks, :func:`rank_covered`: unbiased for any number
-        of draws), ``chi2_pvalue`` (chi-square test of uniform ranks over ``bins`` bins;
+        lies in the central 90 % of ranks, :func:`rank_covered`; exactly 90 % for a
+        calibrated posterior when every ``L + 1`` is a multiple of 20, more otherwise:
+        ``coverage90_rank_expected`` is its expectation over the replicates' ``L``,
+        :func:`expected_rank_coverage`), ``chi2_pvalue`` (chi-square test of uniform ranks over ``bins`` bins;
         each replicate's rank binned on its own ``0..L``) and, when recorded,
         ``ess_median``; the coverage averaged over the quantities overall
         (``coverage90_mean_over_quantities``) and split by the noise level
@@ -128,14 +156,10 @@ def summarise(reps: list[dict], bins: int = RANK_BINS) -> dict:
         raise ParameterError("summarise: no replicates")
     names = reps[0]["names"]
     n = len(reps)
-    bins = min([bins] + [r["L"] + 1 for r in reps])
-    summary = {"replicates": n, "L": min(r["L"] for r in reps), "quantities": {}}
+    summary = {"replicates": n, "L": min(r["L"] for r in reps), "quantities": {},
+               "coverage90_rank_expected": float(np.mean([expected_rank_coverage(r["L"]) for r in reps]))}
     for name in names:
-        counts, expected = np.zeros(bins), np.zeros(bins)
-        for r in reps:  # each replicate on its own 0..L (L varies when thinned to the ESS)
-            edges, prob = rank_bins(r["L"], bins)
-            counts += np.histogram([r["ranks"][name]], edges)[0]
-            expected += prob
+        counts, expected = pooled_rank_counts(reps, name, bins)
         entry = {"coverage90": float(np.mean([r["covered90"][name] for r in reps])),
                  "coverage90_rank": float(np.mean([rank_covered(r["ranks"][name], r["L"]) for r in reps])),
                  "chi2_pvalue": float(stats.chisquare(counts, expected).pvalue)}  # fmt: skip

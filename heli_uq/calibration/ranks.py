@@ -104,7 +104,7 @@ def rank_covered(rank: int, big_l: int, level: float = 0.9) -> bool:
 
 def expected_rank_coverage(big_l: int, level: float = 0.9) -> float:
     """Probability that :func:`rank_covered` holds for a uniform rank on ``0..big_l``:
-    ``(big_l + 1 - 2 k) / (big_l + 1)``, ``level`` or more (1 for ``big_l < 9`` at 0.9,
+    ``(big_l + 1 - 2 k) / (big_l + 1)``, ``level`` or more (1 for ``big_l < 19`` at 0.9,
     where no rank is outside the central 90 %)."""
     k = int(np.floor((big_l + 1) * (1 - level) / 2 + 1e-9))
     return (big_l + 1 - 2 * k) / (big_l + 1)

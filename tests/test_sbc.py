@@ -11,7 +11,12 @@ import numpy as np
 import pytest
 
 from heli_uq.calibration import SBCSettings, run_sbc, sbc, summarise
-from heli_uq.calibration.ranks import expected_interval_coverage, rank_covered, thinned_ranks
+from heli_uq.calibration.ranks import (
+    expected_interval_coverage,
+    expected_rank_coverage,
+    rank_covered,
+    thinned_ranks,
+)
 from heli_uq.errors import ParameterError
 from heli_uq.probability.priors import X0_ANGLE_SD
 
@@ -177,6 +182,15 @@ def test_thinning_to_the_ess_makes_autocorrelated_ranks_uniform():
     assert thinned["quantities"]["q"]["ess_median"] < 0.02 * 1000
     # raw ranks of too few effective draws also under-cover
     assert raw["quantities"]["q"]["coverage90_rank"] < 0.9 - 2 * COVERAGE_TOL
+
+
+def test_expected_rank_coverage_is_the_share_of_covered_ranks():
+    """For every L the closed form equals the share of the L + 1 equally likely ranks that
+    :func:`rank_covered` accepts; 90 % only when 20 divides L + 1, all ranks below L = 19."""
+    for big_l in (1, 3, 18, 19, 20, 50, 99):
+        share = np.mean([rank_covered(k, big_l) for k in range(big_l + 1)])
+        assert expected_rank_coverage(big_l) == pytest.approx(share, abs=1e-12)
+    assert expected_rank_coverage(18) == 1.0 and expected_rank_coverage(99) == pytest.approx(0.9)
 
 
 def test_anti_correlated_draws_are_not_thinned():

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from heli_uq.cli.main import main
+from heli_uq.errors import ParameterError
 from heli_uq.inference.start import MAX_SUBSTEPS
 from heli_uq.model import TABLE1, HeliModel, build_model
 from heli_uq.model.prior import Prior
@@ -113,6 +114,8 @@ def test_cli_prior_check_writes_the_draws_summary_and_figure(tmp_path, capsys):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["sampler"] == "prior" and set(summary["coverage90"]) == {"train", "test"}
     assert (out / "bands.png").stat().st_size > 0
+    with pytest.raises(ParameterError, match="draws: expected an integer >= 1, found 0"):
+        prior_predictive_check(record, out, draws=0)
     capsys.readouterr()
     assert main(["sample", "--sampler", "prior", "--data", str(csv), "--resume", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()

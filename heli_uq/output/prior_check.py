@@ -39,6 +39,7 @@ import arviz as az
 import numpy as np
 
 from heli_uq.data.record import Experiment
+from heli_uq.errors import ParameterError
 from heli_uq.inference.start import MAX_SUBSTEPS
 from heli_uq.io import atomic_write_text
 from heli_uq.model.heli_model import HeliModel
@@ -161,12 +162,19 @@ def prior_predictive_check(record: Experiment, out_dir, *, model: HeliModel | No
     seed : int
     log : callable, optional
 
+    Raises
+    ------
+    ParameterError
+        ``draws`` below 1, or what :func:`~heli_uq.probability.make_problem` refuses.
+
     Returns
     -------
     (arviz.InferenceData, dict)
         The draws and their predictive angles; the summary (module docstring) with
         ``notes``.
     """
+    if isinstance(draws, bool) or not isinstance(draws, int | np.integer) or draws < 1:
+        raise ParameterError(f"draws: expected an integer >= 1, found {draws!r}")
     t0 = time.perf_counter()
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

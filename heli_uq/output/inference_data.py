@@ -188,16 +188,12 @@ def to_inference_data(run, *, prior_draws: int = 500, seed: int = 0, pp_draws: i
 
     rng = np.random.default_rng(seed)
     prior = {n: p.sample(rng, (1, prior_draws)) for n, p in problem.priors.params.items() if p.free}
-    train_mask = np.zeros(len(problem.t), bool)
-    train_mask[:n_train] = True
-    test_mask = np.zeros(len(problem.t), bool)
-    if problem.test is not None:
-        test_mask[problem.test[0] : problem.test[1]] = True
+    masks = problem.masks()
     idata = az.from_dict(
         posterior=s, sample_stats=stats, prior=prior,
         observed_data={"y": problem.y[:n_train]},
-        constant_data={"u": problem.u, "y_obs": problem.y, "train_mask": train_mask,
-                       "test_mask": test_mask},
+        constant_data={"u": problem.u, "y_obs": problem.y, "train_mask": masks["train"],
+                       "test_mask": masks["test"]},
         coords={**coords, "input": ["u_theta", "u_psi"]}, dims=dims,
     )  # fmt: skip
     idata.extend(az.from_dict(

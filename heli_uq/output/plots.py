@@ -231,9 +231,10 @@ def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
         ax.fill_between(t, q[1, :, j], q[3, :, j], color=color, alpha=0.4, lw=0, zorder=3,
                         label=f"50 % {band} band")
         ax.plot(t, q[2, :, j], color=color, lw=1.0, label=f"{band} median", zorder=4)
-        for k, draw in enumerate(np.degrees(np.asarray(examples if examples is not None else []))):
-            ax.plot(t, draw[:, j], color="0.35", lw=0.5, alpha=0.7, zorder=4,
-                    label=f"{len(examples)} single draws" if k == 0 else None)  # fmt: skip
+        if examples is not None:
+            ex = np.degrees(np.asarray(examples))[:, :, j]
+            ax.plot(t, ex.T, color="0.35", lw=0.5, alpha=0.7, zorder=4)
+            ax.plot([], [], color="0.35", lw=0.5, label=f"{len(ex)} single draws")
         if test_mask is not None and np.any(test_mask):
             t_test = t[np.asarray(test_mask, bool)]
             ax.axvspan(t_test[0], t_test[-1], color="0.85", zorder=-1, label="test window")

@@ -199,13 +199,13 @@ def prior_predictive_check(record: Experiment, out_dir, *, model: HeliModel | No
     summary["notes"], summary["note_rules"] = _notes(summary), NOTE_RULES
     summary["wall_s"] = time.perf_counter() - t0
 
-    masks = {w: np.isin(np.arange(len(problem.t)), np.arange(a, b)) for w, (a, b) in windows.items()}
+    masks = problem.masks()
     idata = az.from_dict(
         prior={k: v for k, v in samples.items()},
         prior_predictive={"y_pred": y_pred[None], "y_sim": y_sim[None]},
         observed_data={"y": problem.y[: problem.n_train]},
         constant_data={"u": problem.u, "y_obs": problem.y, "train_mask": masks["train"],
-                       "test_mask": masks.get("test", np.zeros(len(problem.t), bool))},
+                       "test_mask": masks["test"]},
         coords={"time": problem.t, "time_train": problem.t[: problem.n_train], "output": list(OUTPUTS),
                 "input": ["u_theta", "u_psi"]},
         dims={"y_pred": ["time", "output"], "y_sim": ["time", "output"], "sigma": ["output"],
@@ -219,7 +219,7 @@ def prior_predictive_check(record: Experiment, out_dir, *, model: HeliModel | No
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=1))
     cov = summary["coverage90"] or None
     fig = plot_bands(problem.t, y_pred[solved] if np.any(solved) else y_pred, problem.y,
-                     train_mask=masks["train"], test_mask=masks.get("test"), coverage=cov,
+                     train_mask=masks["train"], test_mask=masks["test"], coverage=cov,
                      band="prior predictive", examples=y_sim[solved][:EXAMPLES],
                      title=(f"Prior predictive ({draws} draws, {100 * summary['failed']:.0f} % failed, "
                             f"{100 * summary['unphysical']:.0f} % unphysical; {problem.model.label}): "

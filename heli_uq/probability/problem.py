@@ -74,6 +74,16 @@ class Problem:
             out["test"] = self.test
         return out
 
+    def masks(self) -> dict[str, np.ndarray]:
+        """``{"train": (N,) bool, "test": (N,) bool}`` over the simulated span (the test
+        mask all False without a test window)."""
+        out = {}
+        for w in ("train", "test"):
+            out[w] = np.zeros(len(self.t), bool)
+            a, b = self.windows().get(w, (0, 0))
+            out[w][a:b] = True
+        return out
+
     def solve(self, params, x0, n: int | None = None, *, gradients: str = "adjoint"):
         """Simulate the first ``n`` samples of the span (default all) with the problem's
         model and substeps; a :class:`~heli_uq.simulation.Solution`."""

@@ -160,6 +160,27 @@ def test_a_map_short_of_the_optimum_fails_a_laplace_run():
     assert "MAP did not converge" in health["warnings"][0]
 
 
+#: The main job's measured coverage on the rig record (train 0-91 s, test 91-131 s).
+RIG_WINDOWS = {"train": {"coverage90": {"theta": 0.88, "psi": 0.88}, "n_samples": 9100},
+               "test": {"coverage90": {"theta": 0.82, "psi": 0.39}, "n_samples": 4000}}
+
+
+def test_a_window_the_band_misses_is_a_note_not_a_flag():
+    """A held-out yaw covered 39 % is model error: said in a note, the run stays healthy (its
+    posterior was computed right); a band covering 99 % is too wide; 80 % and 97 % pass."""
+    from heli_uq.output.health import COVERAGE90_RANGE, check_health
+
+    health = check_health({**HEALTHY, "windows": RIG_WINDOWS})
+    assert health["ok"] and health["flags"] == [] and health["warnings"] == []
+    assert len(health["notes"]) == 1, health["notes"]
+    assert "covers 39 % of the test window's psi (4000 samples)" in health["notes"][0]
+    assert "model error" in health["notes"][0]
+    wide = {"train": {"coverage90": {"theta": 0.99, "psi": COVERAGE90_RANGE[1]}},
+            "test": {"coverage90": {"theta": COVERAGE90_RANGE[0], "psi": 0.9}}}
+    notes = check_health({**HEALTHY, "windows": wide})["notes"]
+    assert len(notes) == 1 and "99 % of the train window's theta" in notes[0] and "wider" in notes[0]
+
+
 @pytest.mark.parametrize("needle", list(FAILURES))
 def test_health_flags_each_failed_check(needle):
     from heli_uq.output.health import check_health

@@ -17,7 +17,9 @@ with the measured value and the limit.  Checks, and the flag they raise:
   chains and whitens them: their draws are judged by the checks above, so a MAP that
   stopped short of the optimum (a network's capped polish) is reported, not failed; a NUTS
   run stopped by its time limit with fewer draws than asked for (the checks above judge
-  the draws it made).
+  the draws it made); a window whose 90 % predictive band covers a share of its samples
+  outside :data:`COVERAGE90_RANGE` (model error, not a sampler fault: the checks above
+  judge whether the posterior was computed right, this one whether the model fits).
 * **unphysical**: posterior-predictive draws whose simulation leaves the physical range
   (:mod:`heli_uq.simulation.physical`: |pitch| > 90 deg or non-finite); the fixed-step
   solver off the adaptive reference by more than the tolerance; draws stiffer than the
@@ -37,7 +39,7 @@ from heli_uq.output.diagnostics import BFMI_MIN, ESS_MIN, RHAT_MAX
 
 __all__ = ["check_health", "format_warnings", "TREE_DEPTH_SATURATION_MAX", "STEP_SIZE_MIN",
            "STEP_SIZE_RATIO_MIN", "MAP_DECREMENT_MAX", "MAP_STARTS_ONLY", "UNCONVERGED",
-           "UNPHYSICAL"]  # fmt: skip
+           "COVERAGE90_RANGE", "UNPHYSICAL"]  # fmt: skip
 
 #: Largest fraction of draws at the tree-depth limit: more means the trajectories are cut
 #: short (a collapsed step size or a ridge), and the chain explores by a random walk.
@@ -54,6 +56,12 @@ MAP_DECREMENT_MAX = _START_DECREMENT_MAX
 #: Samplers whose draws are judged on their own (the MAP only starts them): a MAP
 #: that stopped short is a note for these, a failed check for any other.
 MAP_STARTS_ONLY = ("nuts", "emcee")
+#: The share of a window's samples its 90 % predictive band may cover before a note says
+#: so (the calibration range the issues set for held-out windows).  Below it the model
+#: misses the data by more than its posterior and noise allow; above it the band is wider
+#: than the data need.  Autocorrelated residuals make a window's coverage vary more than
+#: a binomial's, hence a range, not a test.
+COVERAGE90_RANGE = (0.80, 0.97)
 UNCONVERGED = "UNCONVERGED"
 UNPHYSICAL = "unphysical"
 
@@ -129,6 +137,23 @@ def _physical_warnings(s: dict, solver_tol: float | None) -> list[str]:
     return out
 
 
+def _coverage_notes(s: dict) -> list[str]:
+    lo, hi = COVERAGE90_RANGE
+    out = []
+    for window, checks in (s.get("windows") or {}).items():
+        for angle, cov in (checks.get("coverage90") or {}).items():
+            if cov is None or lo <= cov <= hi:
+                continue
+            where = f"the {window} window's {angle}" + (f" ({checks['n_samples']} samples)"
+                                                        if "n_samples" in checks else "")
+            why = ("the model misses the data there by more than its posterior and noise allow: "
+                   "model error, not a sampler fault (`heli-uq discover` looks for the missing effect)"
+                   if cov < lo else "the band is wider than the data need")  # fmt: skip
+            out.append(f"the 90 % band covers {100 * cov:.0f} % of {where}, outside "
+                       f"{100 * lo:.0f}-{100 * hi:.0f} %: {why}")  # fmt: skip
+    return out
+
+
 def check_health(summary: dict, *, solver_tol: float | None = None) -> dict:
     """``{"ok": bool, "flags": [...], "warnings": [...], "notes": [...]}`` of a
     ``summary.json`` record (``notes``: reported, not failed; module docstring).
@@ -160,6 +185,7 @@ def check_health(summary: dict, *, solver_tol: float | None = None) -> dict:
     if cut_from is not None:
         notes.append(f"its warm-up was cut from {cut_from} to {summary.get('warmup')} iterations, step size "
                      "only, to leave time for its draws before the time limit")  # fmt: skip
+    notes.extend(_coverage_notes(summary))
     return {"ok": not flags, "flags": flags, "warnings": sampler + physical, "notes": notes}
 
 

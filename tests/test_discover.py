@@ -122,6 +122,8 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
                          (["--candidates", "yaw:torque_offset,yaw:backlash"], "unknown effect 'backlash'"),
                          (["--window", "0:10"], "too short"),
                          (["--train", "0:20"], "--train and --test go together"),
+                         (["--train", "0:20", "--test", "10:30"], "--test: window 10:30 s overlaps"),
+                         (["--train", "0:20", "--test", "20:40"], "--test: window 20:40 s is outside"),
                          (["--max-effects", "0"], "--max-effects"),
                          (["--cold-starts", "-1"], "--cold-starts"),
                          (["--scheduler", "tcp://127.0.0.1:1"],

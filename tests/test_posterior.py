@@ -137,6 +137,10 @@ def test_overlapping_windows_and_bad_draws_are_clear_errors(synthetic_problem, t
     record = synthetic_experiment(duration=2.0, seed=2)
     with pytest.raises(ParameterError, match="overlaps"):
         make_problem(record, (0.0, 1.5), (1.0, 2.0))
+    with pytest.raises(ParameterError, match=r"^test: window 1.5:3 s: outside the record"):
+        make_problem(record, (0.0, 1.5), (1.5, 3.0))
+    with pytest.raises(ParameterError, match=r"^train: window -1:1.5 s: outside the record"):
+        make_problem(record, (-1.0, 1.5), (1.5, 2.0))
     with pytest.raises(ParameterError, match="draws"):
         run_nuts(synthetic_problem, tmp_path, draws=0)
 

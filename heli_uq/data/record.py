@@ -162,11 +162,11 @@ class Experiment:
         """
         t0, t_end = float(self.t[0]), float(self.t[0]) + self.duration
         tol = _GRID_RTOL * self.dt
-        what = f"window {start}:{stop} s"
+        what = f"window {start:g}:{stop:g} s"
         if not (start < stop):
             raise ParameterError(f"{what}: expected start < stop")
         if start < t0 - tol or (stop > t_end + tol and stop != math.inf):
-            raise ParameterError(f"{what}: outside the record, which covers {t0}:{t_end} s")
+            raise ParameterError(f"{what}: outside the record, which covers {t0:g}:{t_end:g} s")
         # Work on the index grid so that floating point noise in t cannot move an edge.
         i0 = max(0, math.ceil((start - t0) / self.dt - _GRID_RTOL))
         i1 = self.n if stop == math.inf else math.ceil((stop - t0) / self.dt - _GRID_RTOL)

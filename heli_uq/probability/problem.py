@@ -96,6 +96,14 @@ class Problem:
         return dataclasses.replace(self, substeps=int(substeps))
 
 
+def _window(record: Experiment, name: str, a: float, b: float) -> Experiment:
+    """``record.window(a, b)``, its error naming the window (``train``, ``test``)."""
+    try:
+        return record.window(a, b)
+    except ParameterError as exc:
+        raise ParameterError(f"{name}: {exc}") from None
+
+
 def make_problem(record: Experiment, train=None, test=None, *, model: HeliModel | None = None,
                  priors: PriorSet | None = None, error: str = "ar1", strategy: str = "auto",
                  substeps: int | None = None) -> Problem:  # fmt: skip
@@ -134,7 +142,7 @@ def make_problem(record: Experiment, train=None, test=None, *, model: HeliModel 
                              f"the model has {', '.join(model.names)}")  # fmt: skip
     t0 = float(record.t[0])
     a, b = train if train is not None else (t0, t0 + record.duration)
-    tr = record.window(a, b)
+    tr = _window(record, "train" if train is not None else "window", a, b)
     if test is None:
         span, test_idx = tr, None
     else:
@@ -143,7 +151,7 @@ def make_problem(record: Experiment, train=None, test=None, *, model: HeliModel 
             raise ParameterError(
                 f"test window {c:g}:{d:g} s overlaps the training window {a:g}:{b:g} s"
             )
-        te = record.window(c, d)
+        te = _window(record, "test", c, d)
         span = record.window(a, float(te.t[-1]) + 0.5 * record.dt)
         start = int(round((te.t[0] - span.t[0]) / record.dt))
         test_idx = (start, start + te.n)

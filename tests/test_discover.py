@@ -116,7 +116,13 @@ def _csv(tmp_path):
     return csv
 
 
-def test_cli_bad_input_is_one_line(tmp_path, capsys):
+def test_cli_bad_input_is_one_line(tmp_path, capsys, monkeypatch):
+    import heli_uq.executor as executor
+
+    # the unreachable scheduler fails after the connect timeout (Dask retries the refused
+    # connection until then); its bound and the one-line error are tested with a short one
+    # (tests/test_discovery_parts.py), the same code path
+    monkeypatch.setattr(executor, "CONNECT_TIMEOUT", "2s")
     csv = _csv(tmp_path)
     for argv, needle in ((["--base-effects", "yaw:backlash"], "unknown effect 'backlash'"),
                          (["--candidates", "yaw:torque_offset,yaw:backlash"], "unknown effect 'backlash'"),

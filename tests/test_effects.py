@@ -283,7 +283,7 @@ def test_stiffness_of_many_draws_at_once_equals_each_draw_from_the_inertia_defin
     omega_s = 0.002  # the terms' default smoothing width [rad/s]
     for i in range(n):
         p = {k: v[i] for k, v in draws.items()}
-        m22 = min(float(yaw_inertia(p, th)) for th in thetas)
+        m22 = float(np.min(yaw_inertia(p, thetas)))  # M22 at every angle (one call, not 500)
         m11 = float(pitch_inertia(p))
         yaw = (p["F_c_yaw"] + p["F_s_yaw"]) / (omega_s * m22) + math.sqrt(p["k_yaw"] / m22)
         np.testing.assert_allclose(rates[i], max(yaw, p["F_c_pitch"] / (omega_s * m11)), rtol=1e-12)

@@ -11,6 +11,7 @@ independent form against which :func:`solver_error` measures the fixed-step solu
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 
 import diffrax
@@ -34,6 +35,23 @@ MAX_STEPS = 2_000_000
 def _switch_times(u: np.ndarray, dt: float) -> np.ndarray:
     change = np.flatnonzero(np.any(u[1:] != u[:-1], axis=1)) + 1
     return change * dt
+
+
+@functools.partial(jax.jit, static_argnames=("model", "t1", "dt0", "rtol", "atol"))
+def _adaptive_solve(y0, p, levels, jump_ts, ts, *, model, t1, dt0, rtol, atol):
+    """The diffrax solve of :func:`reference_solve` (``jump_ts``: the switch times, maybe none)."""
+
+    def field(t, y, args):
+        p, levels, jump_ts = args
+        k = jnp.searchsorted(jump_ts, t, side="right")
+        return model(t, y, (p, levels[k]))
+
+    controller = diffrax.PIDController(rtol=rtol, atol=atol,
+                                       jump_ts=jump_ts if jump_ts.shape[0] else None)  # fmt: skip
+    return diffrax.diffeqsolve(
+        diffrax.ODETerm(field), diffrax.Kvaerno5(), t0=0.0, t1=t1, dt0=dt0, y0=y0,
+        args=(p, levels, jump_ts), saveat=diffrax.SaveAt(ts=ts), stepsize_controller=controller,
+        max_steps=MAX_STEPS, throw=False)  # fmt: skip
 
 
 def reference_solve(params: Mapping | None, x0, u, dt: float, *, model: HeliModel | None = None,
@@ -63,20 +81,12 @@ def reference_solve(params: Mapping | None, x0, u, dt: float, *, model: HeliMode
     # ends a step at prevbefore(jump) and starts the next at nextafter(jump), so every
     # stage of a step sees one constant voltage.
     starts = np.concatenate([[0], np.flatnonzero(np.any(u[1:] != u[:-1], axis=1)) + 1])
-    levels = jnp.asarray(u[starts])
-    jump_ts = jnp.asarray(jumps)
-
-    def field(t, y, args):
-        k = jnp.searchsorted(jump_ts, t, side="right")
-        return model(t, y, (p, levels[k]))
-
-    controller = diffrax.PIDController(rtol=rtol, atol=atol,
-                                       jump_ts=jump_ts if jumps.size else None)  # fmt: skip
-    solve_ = jax.jit(lambda y0: diffrax.diffeqsolve(
-        diffrax.ODETerm(field), diffrax.Kvaerno5(), t0=0.0, t1=float(ts[-1]) if n > 1 else dt,
-        dt0=dt / 4, y0=y0, saveat=diffrax.SaveAt(ts=jnp.asarray(ts)),
-        stepsize_controller=controller, max_steps=MAX_STEPS, throw=False))  # fmt: skip
-    sol = solve_(jnp.asarray(x0, dtype=jnp.float64))
+    # parameters, levels and switch times are arguments of one compiled solve per model,
+    # record shape and tolerances (closed over, each parameter set compiled anew)
+    p = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in p.items()}
+    sol = _adaptive_solve(jnp.asarray(x0, dtype=jnp.float64), p, jnp.asarray(u[starts]),
+                          jnp.asarray(jumps), jnp.asarray(ts), model=model,
+                          t1=float(ts[-1]) if n > 1 else dt, dt0=dt / 4, rtol=rtol, atol=atol)  # fmt: skip
     ys = np.asarray(sol.ys)
     if not (sol.result == diffrax.RESULTS.successful) or not np.all(np.isfinite(ys)):
         raise ParameterError(f"reference solve failed ({sol.result}); the parameters make the "

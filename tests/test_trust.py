@@ -434,9 +434,25 @@ def test_unconverged_run_warns_strict_fails_and_resume_checks_its_manifest(tmp_p
     _one_line_error(capsys.readouterr().err, "--resume: nothing to resume")
 
 
+#: The uninterrupted NUTS run that the interrupted, resumed and time-limited runs reproduce.
+FULL_RUN = dict(chains=2, warmup=30, draws=40, chunk=20, seed=3, progress=False)
+
+
+# Session scope and one xdist group: the two tests that compare against the uninterrupted
+# run share it (computed once; a module fixture is computed again after other modules).
+@pytest.fixture(scope="session")
+def full_nuts_run(synthetic_problem, synthetic_start, tmp_path_factory):
+    from heli_uq.inference import nuts
+
+    return nuts.run_nuts(synthetic_problem, tmp_path_factory.mktemp("full"), start=synthetic_start,
+                         **FULL_RUN)  # fmt: skip
+
+
 @pytest.mark.slow
+@pytest.mark.xdist_group("full_nuts_run")
 def test_interrupted_and_resumed_nuts_gives_bit_identical_draws(synthetic_problem, synthetic_start,
-                                                                 tmp_path, monkeypatch):  # fmt: skip
+                                                                 full_nuts_run, tmp_path,
+                                                                 monkeypatch):  # fmt: skip
     """SIGINT (a real signal) in warm-up and again mid-chunk while sampling; the finished work
     is saved and two resumes reproduce the uninterrupted run's draws bit for bit, although
     the interrupted runs advance in blocks of one iteration."""
@@ -445,8 +461,8 @@ def test_interrupted_and_resumed_nuts_gives_bit_identical_draws(synthetic_proble
     from heli_uq.inference import nuts
     from heli_uq.inference.interrupt import Interrupted, Progress
 
-    kw = dict(chains=2, warmup=30, draws=40, chunk=20, seed=3, progress=False, start=synthetic_start)
-    full = nuts.run_nuts(synthetic_problem, tmp_path / "full", **kw)
+    kw = dict(FULL_RUN, start=synthetic_start)
+    full = full_nuts_run
 
     class InterruptAt(Progress):
         """Progress that sends SIGINT to this process at its ``at``-th update."""
@@ -480,8 +496,10 @@ def test_interrupted_and_resumed_nuts_gives_bit_identical_draws(synthetic_proble
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("full_nuts_run")
 def test_a_time_limited_nuts_run_keeps_its_draws_and_a_resume_completes_it(synthetic_problem,
-                                                                           synthetic_start, tmp_path,
+                                                                           synthetic_start,
+                                                                           full_nuts_run, tmp_path,
                                                                            monkeypatch):  # fmt: skip
     """A run past its time limit stops after the warm-up once every chain has the fewest
     draws it keeps; they are the uninterrupted run's first draws, the run records how many
@@ -490,8 +508,8 @@ def test_a_time_limited_nuts_run_keeps_its_draws_and_a_resume_completes_it(synth
     from heli_uq.inference import nuts
     from heli_uq.output.health import check_health
 
-    kw = dict(chains=2, warmup=30, draws=40, chunk=20, seed=3, progress=False, start=synthetic_start)
-    full = nuts.run_nuts(synthetic_problem, tmp_path / "full", **kw)
+    kw = dict(FULL_RUN, start=synthetic_start)
+    full = full_nuts_run
     monkeypatch.setattr(nuts, "BLOCK_SECONDS", 1e-9)  # one iteration per block after the first two
     monkeypatch.setattr(nuts, "MIN_DRAWS_AT_LIMIT", 7)
     cut = tmp_path / "cut"

@@ -73,6 +73,7 @@ from heli_uq.errors import ParameterError
 from heli_uq.executor import check_scheduler
 from heli_uq.log import progress_log
 from heli_uq.model import AXES, EFFECTS, RIG_FIT, build_model
+from heli_uq.probability import check_split
 
 __all__ = ["discover", "Budget", "BUDGETS", "FIT_FRACTION", "MIN_SECONDS"]  # fmt: skip
 
@@ -146,9 +147,7 @@ def _windows(record: Experiment, window, train, test):
             if not (t0 - 1e-9 <= a < b <= t1 + 1e-9):
                 raise ParameterError(f"{name}: window {a:g}:{b:g} s is outside the record "
                                      f"({t0:g}:{t1:g} s)")  # fmt: skip
-        if test[0] < train[1] - 0.5 * record.dt:
-            raise ParameterError(f"test: window {test[0]:g}:{test[1]:g} s overlaps the training "
-                                 f"window {train[0]:g}:{train[1]:g} s")  # fmt: skip
+        check_split(train, test, record.dt)
         fit, score, refit = tuple(train), tuple(test), (tuple(train), tuple(test))
     else:
         a, b = window if window is not None else (t0, t1)

@@ -142,7 +142,7 @@ def _coverage_notes(s: dict) -> list[str]:
     out = []
     for window, checks in (s.get("windows") or {}).items():
         for angle, cov in (checks.get("coverage90") or {}).items():
-            if cov is None or lo <= cov <= hi:
+            if cov is None or not math.isfinite(cov) or lo <= cov <= hi:
                 continue
             where = f"the {window} window's {angle}" + (f" ({checks['n_samples']} samples)"
                                                         if "n_samples" in checks else "")

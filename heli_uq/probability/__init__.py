@@ -16,8 +16,9 @@ from heli_uq.probability.priors import PriorSet as PriorSet
 from heli_uq.probability.priors import load_priors_json as load_priors_json
 from heli_uq.probability.priors import parse_prior_option as parse_prior_option
 from heli_uq.probability.problem import Problem as Problem
+from heli_uq.probability.problem import check_split as check_split
 from heli_uq.probability.problem import make_problem as make_problem
 
 __all__ = ["Coordinates", "log_likelihood", "loss_v", "pointwise_log_likelihood",
            "whitened_residuals", "ERROR_MODELS", "ar1_noise", "heli_model", "PriorSet",
-           "load_priors_json", "parse_prior_option", "Problem", "make_problem"]  # fmt: skip
+           "load_priors_json", "parse_prior_option", "Problem", "check_split", "make_problem"]  # fmt: skip

@@ -19,7 +19,7 @@ from heli_uq.probability.noise import ERROR_MODELS
 from heli_uq.probability.priors import PriorSet
 from heli_uq.simulation.solver import default_substeps, solve
 
-__all__ = ["Problem", "make_problem", "fingerprint"]
+__all__ = ["Problem", "check_split", "make_problem", "fingerprint"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -96,6 +96,14 @@ class Problem:
         return dataclasses.replace(self, substeps=int(substeps))
 
 
+def check_split(train, test, dt: float) -> None:
+    """Raise :class:`ParameterError` if the test window ``(c, d)`` [s] starts before the
+    training window ``(a, b)`` ends (by more than half a sample ``dt``)."""
+    (a, b), (c, d) = train, test
+    if c < b - 0.5 * dt:
+        raise ParameterError(f"test: window {c:g}:{d:g} s overlaps the training window {a:g}:{b:g} s")
+
+
 def _window(record: Experiment, name: str, a: float, b: float) -> Experiment:
     """``record.window(a, b)``, its error naming the window (``train``, ``test``)."""
     try:
@@ -147,10 +155,7 @@ def make_problem(record: Experiment, train=None, test=None, *, model: HeliModel 
         span, test_idx = tr, None
     else:
         c, d = test
-        if c < b - 0.5 * record.dt:
-            raise ParameterError(
-                f"test window {c:g}:{d:g} s overlaps the training window {a:g}:{b:g} s"
-            )
+        check_split((a, b), test, record.dt)
         te = _window(record, "test", c, d)
         span = record.window(a, float(te.t[-1]) + 0.5 * record.dt)
         start = int(round((te.t[0] - span.t[0]) / record.dt))

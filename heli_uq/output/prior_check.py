@@ -44,6 +44,7 @@ from heli_uq.inference.start import MAX_SUBSTEPS
 from heli_uq.io import atomic_write_text
 from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.tables import X0_NAMES
+from heli_uq.output.health import COVERAGE90_RANGE
 from heli_uq.output.inference_data import save_netcdf, simulate_draws
 from heli_uq.output.plots import plot_bands, save_figure
 from heli_uq.probability.priors import OUTPUTS, PriorSet
@@ -58,8 +59,9 @@ FAILED_NOTE = 0.05
 #: Share of unphysical draws (pitch beyond +-90 deg) above which a note is given.
 UNPHYSICAL_NOTE = 0.25
 #: Coverage of the record by the prior's 90 % band below which a note is given: a prior
-#: at the truth covers 90 % up to sampling error, a wider one more.
-COVERAGE_NOTE = 0.8
+#: at the truth covers 90 % up to sampling error, a wider one more (the posterior's
+#: lower bound too, :data:`heli_uq.output.health.COVERAGE90_RANGE`; no upper bound here).
+COVERAGE_NOTE = COVERAGE90_RANGE[0]
 #: Prior predictive p-values outside ``[P_TAIL, 1 - P_TAIL]`` are notes.
 P_TAIL = 0.01
 #: Solved draws drawn one by one over the bands of ``bands.png``.

@@ -97,3 +97,11 @@ def append_jsonl(path, row: dict) -> pathlib.Path:
     with open(path, "a", encoding="utf-8") as fh:
         fh.write(json.dumps(row, default=lambda o: np.asarray(o).tolist()) + "\n")
     return path
+
+
+def record_line(script: str, argv, path, line: dict) -> None:
+    """Append ``line`` with its :func:`provenance` (wall time ``line["seconds"]``) to
+    ``path`` and print it, without the provenance, as one JSON line."""
+    line["provenance"] = provenance(script, argv, line["seconds"])
+    append_jsonl(path, line)
+    print(json.dumps({k: v for k, v in line.items() if k != "provenance"}, default=str), flush=True)

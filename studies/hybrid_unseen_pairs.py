@@ -33,7 +33,6 @@ One JSON line per posterior goes to ``--out`` (default
 from __future__ import annotations
 
 import argparse
-import json
 import pathlib
 import sys
 import time
@@ -41,7 +40,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _study import add_run_arguments, append_jsonl, provenance  # noqa: E402
+from _study import add_run_arguments, record_line  # noqa: E402
 
 #: The hidden yaw thrust [N m/V^2] (as in ``tests/test_hybrid_posterior.py``).
 K_Q = 0.05
@@ -120,9 +119,7 @@ def main(argv=None):
                     "worst_rhat_variable": summary.get("worst_rhat_variable"),
                     "tree_depth_saturation": summary.get("tree_depth_saturation"),
                     "health": summary["health"]["flags"], "seconds": time.perf_counter() - t0}  # fmt: skip
-            line["provenance"] = provenance(__file__, argv, line["seconds"])
-            append_jsonl(args.out, line)
-            print(json.dumps({k: v for k, v in line.items() if k != "provenance"}), flush=True)
+            record_line(__file__, argv, args.out, line)
             continue
         idata, summary = sample_posterior(record, run_dir, model=model, train=train, priors=priors,
                                           test=test, error="iid", network_posterior=posterior,
@@ -149,9 +146,7 @@ def main(argv=None):
                 "test_coverage90_psi": te["coverage90"]["psi"], "rhat_max": summary.get("rhat_max"),
                 "rhat_max_network_torque": summary.get("rhat_max_network_torque"),
                 "health": summary["health"]["flags"], "seconds": time.perf_counter() - t0}  # fmt: skip
-        line["provenance"] = provenance(__file__, argv, line["seconds"])
-        append_jsonl(args.out, line)
-        print(json.dumps({k: v for k, v in line.items() if k != "provenance"}), flush=True)
+        record_line(__file__, argv, args.out, line)
     return 0
 
 

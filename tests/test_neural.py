@@ -69,6 +69,41 @@ def test_network_matches_numpy_and_is_orthogonal_to_the_linear_gains(adapted):
     np.testing.assert_allclose(basis.T @ (counts * got), 0.0, atol=EXACT * np.abs(raw).max() * len(rec.u))
 
 
+@pytest.mark.parametrize("axis", ["yaw", "pitch"])
+@pytest.mark.parametrize("project", ["u", "1,u"])
+def test_a_network_of_the_states_is_orthogonal_to_the_linear_physics(axis, project):
+    """A network of (u, x, v) is projected off what the axis's physics owns: the gains, the
+    damping rate and (pitch) the gravity torque's cos/sin, over evenly spaced training
+    samples with smoothed rates; a sample-weighted projection of u alone would leave the
+    damping's direction in it."""
+    from heli_uq.data.rates import measured_rates
+
+    rec = _record(seconds=20.0)
+    item = {"effect": "neural_torque", "axis": axis, "inputs": "u,x,v", "hidden": 3, "project": project}
+    model = build_model([item]).adapted(rec.u, rec.y, rec.dt)
+    term = model.effects[0]
+    points = np.asarray(term.reference)
+    rates = measured_rates(rec.y, rec.dt)
+    samples = np.column_stack([rec.u, rec.y, rates])
+    # the reference points are training samples, first and last included
+    rows = [int(np.flatnonzero(np.all(samples == p_, axis=1))[0]) for p_ in points]
+    assert rows[0] == 0 and rows[-1] == len(rec.u) - 1 and len(set(rows)) == len(rows) > 100
+    j = 4 if axis == "pitch" else 5
+    columns = [np.ones(len(points))] if project == "1,u" else []
+    columns += [points[:, 0], points[:, 1], points[:, j]]
+    if axis == "pitch":
+        columns += [np.cos(points[:, 2]), np.sin(points[:, 2])]
+    basis = np.column_stack(columns)
+    p = model.complete(_random_weights(model))
+    prepared = model.prepare(p)[1]
+    got = np.array([float(term.torque(prepared, q[2:4], q[4:6], q[:2])) for q in points])
+    raw = _numpy_network(term, p, points)
+    beta = np.linalg.lstsq(basis, raw, rcond=None)[0]
+    np.testing.assert_allclose(got, raw - basis @ beta, atol=EXACT * np.abs(raw).max())
+    assert np.abs(basis.T @ raw).max() > 1e-3 * np.abs(raw).max() * len(points)  # there was a part to remove
+    np.testing.assert_allclose(basis.T @ got, 0.0, atol=EXACT * np.abs(raw).max() * len(points))
+
+
 def test_common_scale_leaves_the_angles_unchanged(adapted):
     rec, model, _ = adapted
     p = model.complete({**RIG_FIT, **_random_weights(model)})
@@ -197,3 +232,66 @@ def test_training_rejects_steps_that_blow_up_the_model(monkeypatch):
     assert not np.all(np.isfinite(result.v_adam)), "the learning rate did not blow the model up"
     assert np.isfinite(result.v) and result.v <= result.v_start
     assert all(np.isfinite(v) for v in result.params.values())
+
+
+#: Smoothed rates of a noisy synthetic record must be this much closer to the true rates
+#: than plain central differences (the noise of a difference is sigma sqrt(2) / (2 dt)).
+RATE_GAIN = 5.0
+
+
+def test_measured_rates_follow_the_true_rates_through_the_noise():
+    from heli_uq.data.rates import measured_rates
+
+    rec = _record(seconds=20.0)
+    truth = np.asarray(simulate(RIG_FIT, RIG_FIT_X0, rec.u, rec.dt))[:, 2:4]
+    smooth = measured_rates(rec.y, rec.dt) - truth
+    plain = np.gradient(np.asarray(rec.y), rec.dt, axis=0) - truth
+    for j in range(2):
+        assert np.sqrt(np.mean(plain[:, j] ** 2)) > RATE_GAIN * np.sqrt(np.mean(smooth[:, j] ** 2))
+
+
+def _state_network_idata(rate_slope, damping):
+    """A hand-made posterior of a yaw network of the states: mechanics at the rig fit in
+    every draw, the network torque ``rate_slope[s] * omega_psi + curve`` on a grid of
+    training samples, and ``D_psi`` per draw."""
+    import arviz as az
+
+    from heli_uq.model.terms.rigid_body import MECHANICS_PARAMETERS
+
+    rng = np.random.default_rng(1)
+    k, s = 40, len(rate_slope)
+    points = {"u_theta": rng.uniform(1, 2, k), "u_psi": rng.uniform(0.5, 1.5, k),
+              "omega_psi": rng.normal(0, 0.5, k), "time": np.arange(k) * 0.1}  # fmt: skip
+    curve = points["omega_psi"] * np.abs(points["omega_psi"])
+    basis = np.column_stack([points["u_theta"], points["u_psi"], points["omega_psi"]])
+    curve = curve - basis @ np.linalg.lstsq(basis, curve, rcond=None)[0]  # no linear part
+    torque = rate_slope[:, None] * points["omega_psi"] + 0.01 * curve
+    post = {n.name: np.full((1, s), RIG_FIT[n.name]) for n in MECHANICS_PARAMETERS if n.name in RIG_FIT}
+    post.update(D_psi=damping[None], K_psi_psi=np.full((1, s), RIG_FIT["K_psi_psi"]),
+                K_psi_theta=np.full((1, s), RIG_FIT["K_psi_theta"]), nn_torque_yaw=torque[None])  # fmt: skip
+    idata = az.from_dict(posterior=post, dims={"nn_torque_yaw": ["nn_point_yaw"]},
+                         constant_data={"u": np.ones((5, 2)), "y_obs": np.full((5, 2), -0.4),
+                                        "train_mask": np.ones(5, bool)})  # fmt: skip
+    coords = {f"nn_point_yaw_{q}": ("nn_point_yaw", v) for q, v in points.items()}
+    idata.posterior = idata.posterior.assign_coords(coords)
+    return idata
+
+
+def test_the_trade_off_of_a_state_network_includes_the_damping():
+    """For a network of the states, ``gain_trade_off`` regresses its torque on the gains'
+    voltages and on the axis's rate: a rate slope that the damping compensates draw by draw
+    is a perfect trade-off (corr -1, their sum fixed); a network without a linear part
+    leaves the damping alone (no linear part, corr undefined)."""
+    from heli_uq.output.network import axis_inertia, gain_trade_off
+
+    slope = np.random.default_rng(2).normal(0, 0.02, 300)
+    idata = _state_network_idata(np.zeros(300), np.full(300, RIG_FIT["D_psi"]))
+    inertia = float(axis_inertia(idata, "yaw")[0])
+    traded = gain_trade_off(_state_network_idata(slope, RIG_FIT["D_psi"] + slope), "yaw")
+    assert set(traded) == {"u_theta", "u_psi", "omega_psi"} and traded["omega_psi"]["gain"] == "D_psi"
+    row = traded["omega_psi"]
+    assert row["corr"] == pytest.approx(-1.0, abs=1e-9)
+    assert row["sd_linear"] == pytest.approx(slope.std() / inertia, rel=1e-6)
+    assert row["sd_total"] < 1e-9 * row["sd_gain"]
+    alone = gain_trade_off(_state_network_idata(np.zeros(300), RIG_FIT["D_psi"] + slope), "yaw")["omega_psi"]
+    assert np.isnan(alone["corr"]) and alone["sd_linear"] < 1e-9 * alone["sd_gain"]

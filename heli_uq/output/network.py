@@ -9,8 +9,10 @@ network adds.  :func:`network_points` fixes where it is reported:
   record constrains; at most :data:`MAX_POINTS`, the most-held first); and, as a second
   grid ``<axis>_unseen``, at the span's pairs the training window never holds (a test
   window's new pairs: where the band must widen, :func:`band_widths`);
-* ``inputs="u,x,v"``: at :data:`MAX_POINTS` evenly spaced samples of the training
-  window (measured angles, rates by finite differences, voltages).
+* ``inputs="u,x,v"``: at evenly spaced samples of the training window (measured angles,
+  their smoothed rates, voltages): the term's projection points if it has them (the
+  torque is then exactly orthogonal to the linear physics on the grid), else
+  :data:`MAX_POINTS`.
 
 :func:`network_torques` evaluates every posterior draw there, with the orthogonal
 projection applied (the torque the term adds to the equations of motion, [N m]).
@@ -32,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from heli_uq.data import unseen_inputs
+from heli_uq.data.rates import evenly_spaced, measured_rates
 from heli_uq.model.terms.linear_torque import LINEAR_TORQUE_PARAMETERS
 from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.model.terms.rigid_body import MECHANICS_PARAMETERS, pitch_inertia, yaw_inertia
@@ -90,8 +93,8 @@ def network_points(problem, term: NeuralTorque, max_points: int = MAX_POINTS, *,
     if unseen:
         raise ValueError(f"unseen grid: defined for a network of u only, not of {term.inputs}")
     y = np.asarray(problem.y[:n], dtype=float)
-    rates = np.gradient(y, float(problem.dt), axis=0) if n > 1 else np.zeros_like(y)
-    idx = np.unique(np.linspace(0, n - 1, min(n, max_points)).round().astype(int))
+    rates = measured_rates(y, problem.dt)
+    idx = evenly_spaced(n, len(term.reference) or max_points)  # a projected network: its own points
     columns = {"u_theta": u[:, 0], "u_psi": u[:, 1], "theta": y[:, 0], "psi": y[:, 1],
                "omega_theta": rates[:, 0], "omega_psi": rates[:, 1]}  # fmt: skip
     return {"time": np.asarray(problem.t)[idx], **{k: v[idx] for k, v in columns.items()}}
@@ -237,54 +240,64 @@ def band_widths(idata, axis: str = "yaw", level: float = 0.9) -> dict:
 
 
 def gain_trade_off(idata, axis: str = "yaw") -> dict:
-    """How the gains of ``axis`` and the linear part of its network of ``u`` trade off.
+    """How the linear physics of ``axis`` and the linear part of its network trade off.
 
-    Per draw, ``b = (b_theta, b_psi)`` is the least-squares fit ``b_theta u_theta +
-    b_psi u_psi`` of the stored network torque ``nn_torque_<axis>`` over its voltage
-    pairs, weighted by the samples the training window holds at each: the part of the
-    network the gains can reproduce (the span and weights of the term's default
-    projection, so a projected network gives ``b = 0``).  The axis's
-    torque is ``sum_j s_j K_j u_j + T_nn`` (``s_j`` the gain's sign), so ``s_j K_j`` and
-    ``b_j`` trade off one for one when the network can reproduce ``u_j``.  Both are divided
-    by the draw's inertia ``M`` of the axis (``M11``; ``M22`` at the training window's median
-    pitch): the common inertia scale, which the angles never see, would otherwise correlate
-    every torque with every other.
+    Per draw, ``b`` is the least-squares fit of the stored network torque
+    ``nn_torque_<axis>`` over its grid on the columns the physics owns: ``u_theta, u_psi``
+    (the gains) for a network of ``u``, weighted by the samples the training window holds
+    at each voltage pair; and also the axis's rate ``omega_<axis>`` (the damping) for a
+    network of the states, over its grid of training samples, unweighted.  These are the
+    spans of the term's projection, so a projected network gives ``b`` near 0.  The axis's
+    torque is ``sum_j s_j P_j c_j + T_nn`` (``P_j`` the gain or damping of column ``c_j``,
+    ``s_j`` its sign), so ``s_j P_j`` and ``b_j`` trade off one for one when the network can
+    reproduce ``c_j``.  Both are divided by the draw's inertia ``M`` of the axis (``M11``;
+    ``M22`` at the training window's median pitch): the common inertia scale, which the
+    angles never see, would otherwise correlate every torque with every other.
 
     Parameters
     ----------
     idata : arviz.InferenceData
-        A hybrid posterior with ``nn_torque_<axis>`` on voltage pairs (a network of ``u``)
-        and ``constant_data`` ``u``, ``train_mask``.
+        A hybrid posterior with ``nn_torque_<axis>`` on its grid and ``constant_data``
+        ``u``, ``train_mask``.
 
     Returns
     -------
     dict
-        ``{input: {"gain", "corr", "sd_gain", "sd_linear", "sd_total"}}`` for the inputs
-        ``u_theta``, ``u_psi``: the gain's name, the correlation over draws of ``s K / M``
-        with ``b / M`` (NaN when either is constant), and the sds [1/(V s^2)] of ``s K / M``,
-        ``b / M`` and their sum (what the data determine); empty without such a
-        network.
+        ``{column: {"gain", "corr", "sd_gain", "sd_linear", "sd_total"}}`` for the columns
+        ``u_theta``, ``u_psi`` (and ``omega_<axis>``): the physical parameter's name, the
+        correlation over draws of ``s P / M`` with ``b / M`` (NaN when either is
+        constant), and the sds of ``s P / M``, ``b / M`` and their sum (what the data
+        determine) [1/(V s^2), or 1/s for the damping]; empty without such a network.
     """
     name = f"nn_torque_{axis}"
     post = idata.posterior
     if name not in post or f"nn_point_{axis}_u_psi" not in post.coords or "u" not in idata.constant_data:
         return {}
-    pairs, counts = network_pairs(idata, axis)
+    columns = ["u_theta", "u_psi"]
+    physics = {par.input[0]: (par.name, par.input[1]) for par in LINEAR_TORQUE_PARAMETERS
+               if par.axis == axis and par.input is not None}  # fmt: skip
+    if f"nn_point_{axis}_time" in post.coords:  # a network of the states: the damping too
+        columns.append("omega_theta" if axis == "pitch" else "omega_psi")
+        damping = next(p.name for p in LINEAR_TORQUE_PARAMETERS if p.axis == axis and p.input is None)
+        physics[2] = (damping, -1.0)
+        basis = np.stack([np.asarray(post[f"nn_point_{axis}_{q}"]) for q in columns], axis=1)
+        counts = np.ones(len(basis))
+    else:
+        basis, counts = network_pairs(idata, axis)
     root_w = np.sqrt(counts / counts.sum())
-    torque = np.asarray(post[name]).reshape(-1, len(pairs))
-    b = np.linalg.lstsq(root_w[:, None] * pairs, (root_w * torque).T, rcond=None)[0].T  # (S, 2)
+    torque = np.asarray(post[name]).reshape(-1, len(basis))
+    b = np.linalg.lstsq(root_w[:, None] * basis, (root_w * torque).T, rcond=None)[0].T  # (S, columns)
     fixed = fixed_values(json.loads(post.attrs.get("priors", "{}")))
     flat = _draws_of(post, fixed, len(torque))
     inertia = axis_inertia(idata, axis)
     out = {}
-    for par in LINEAR_TORQUE_PARAMETERS:
-        if par.axis != axis or par.input is None or not (par.name in post or par.name in fixed):
+    for j, (par, sign) in sorted(physics.items()):
+        if not (par in post or par in fixed):
             continue
-        j, sign = par.input
-        gain, linear = sign * flat(par.name) / inertia, b[:, j] / inertia
+        gain, linear = sign * flat(par) / inertia, b[:, j] / inertia
         varies = gain.std() > 0 and linear.std() > FLAT * gain.std()
         corr = float(np.corrcoef(gain, linear)[0, 1]) if varies else float("nan")
-        out[("u_theta", "u_psi")[j]] = {"gain": par.name, "corr": corr, "sd_gain": float(gain.std()),
-                                        "sd_linear": float(linear.std()),
-                                        "sd_total": float((gain + linear).std())}  # fmt: skip
+        out[columns[j]] = {"gain": par, "corr": corr, "sd_gain": float(gain.std()),
+                           "sd_linear": float(linear.std()),
+                           "sd_total": float((gain + linear).std())}  # fmt: skip
     return out

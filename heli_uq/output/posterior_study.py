@@ -213,9 +213,11 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
             f"highest density or the stiffest draw (tolerance {SOLVER_TOL:g}); rerun with more substeps")
     if last_layer is not None:
         summary["last_layer"] = last_layer
-    of_u = [t.axis for t in network_terms(problem.model) if t.inputs == "u"]
+    networks = network_terms(problem.model)
+    if networks:
+        summary["gain_trade_off"] = {t.axis: gain_trade_off(idata, t.axis) for t in networks}
+    of_u = [t.axis for t in networks if t.inputs == "u"]
     if of_u:
-        summary["gain_trade_off"] = {axis: gain_trade_off(idata, axis) for axis in of_u}
         summary["network_band_widths"] = {axis: band_widths(idata, axis) for axis in of_u}
     summary["health"] = check_health(summary, solver_tol=SOLVER_TOL)
     summary["wall_s"] = time.perf_counter() - t0

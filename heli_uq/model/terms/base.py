@@ -29,7 +29,7 @@ from heli_uq.errors import ParameterError
 from heli_uq.model.parameter import AXES, Parameter
 
 __all__ = ["AbstractTerm", "AbstractTorque", "AbstractInputMap", "AbstractEffect", "on_axis",
-           "axis_index", "float_tuple", "gain_projection"]  # fmt: skip
+           "axis_index", "float_tuple", "gain_projection", "weighted_projection"]  # fmt: skip
 
 
 def axis_index(axis: str) -> int:
@@ -46,15 +46,22 @@ def float_tuple(value):
     return float(value)
 
 
-def gain_projection(pairs, weights, intercept: bool) -> np.ndarray:
-    """Rows ``P`` (3, k) with ``beta = P @ f`` the weighted least-squares fit of values ``f``
-    (k,) at voltage pairs ``pairs`` (k, 2) [V] on ``(1,) u_theta, u_psi`` (weights: samples
-    held at each pair; ``beta_0 = 0`` without ``intercept``).  Subtracting that fit makes a
-    data-driven torque orthogonal to what the linear gains (and an offset) own."""
-    pairs, weights = np.asarray(pairs, dtype=float), np.asarray(weights, dtype=float)
-    basis = np.column_stack([np.ones(len(pairs)) * intercept, pairs])
+def weighted_projection(basis, weights) -> np.ndarray:
+    """Rows ``P`` (m, k) with ``beta = P @ f`` the weighted least-squares fit of values ``f``
+    (k,) on the columns of ``basis`` (k, m), with weights ``weights`` (k,).  A column of
+    zeros gets a row of zeros.  Subtracting ``basis @ beta`` makes a data-driven torque
+    orthogonal to the span the physics owns."""
+    basis, weights = np.asarray(basis, dtype=float), np.asarray(weights, dtype=float)
     root_w = np.sqrt(weights / weights.sum())
     return np.linalg.pinv(root_w[:, None] * basis, rcond=1e-10) * root_w[None, :]
+
+
+def gain_projection(pairs, weights, intercept: bool) -> np.ndarray:
+    """Rows ``P`` (3, k) of :func:`weighted_projection` for values at voltage pairs
+    ``pairs`` (k, 2) [V] on ``(1,) u_theta, u_psi`` (weights: samples held at each pair;
+    ``beta_0 = 0`` without ``intercept``): what the linear gains (and an offset) own."""
+    pairs = np.asarray(pairs, dtype=float)
+    return weighted_projection(np.column_stack([np.ones(len(pairs)) * intercept, pairs]), weights)
 
 
 def on_axis(axis: str, torque):

@@ -16,8 +16,8 @@ Writes ``residuals.png`` (time, segments, features) and returns a JSON-able dict
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import savgol_filter
 
+from heli_uq.data.rates import measured_rates
 from heli_uq.discovery.score import input_blocks
 from heli_uq.figure import new_figure, save_figure
 
@@ -32,8 +32,7 @@ _AXES = ("theta", "psi")
 
 
 def _features(y, u, dt) -> dict:
-    n = max(5, int(round(_SMOOTH_S / dt)) | 1)
-    v = savgol_filter(y, min(n, (len(y) - 2) | 1), 3, deriv=1, delta=dt, axis=0)
+    v = measured_rates(y, dt, _SMOOTH_S)
     return {"u_theta [V]": u[:, 0], "u_psi [V]": u[:, 1], "omega_theta [rad/s]": v[:, 0],
             "omega_psi [rad/s]": v[:, 1], "theta [rad]": y[:, 0], "psi [rad]": y[:, 1],
             "psi still (|omega_psi| < 0.02)": (np.abs(v[:, 1]) < STILL_RATE).astype(float)}  # fmt: skip

@@ -115,8 +115,10 @@ STUDIES = (
                    "--draws", "10", "--runs", "{root}/runs/hybrid_unseen_pairs", "--figures", "{root}/figures",
                    "--out", "{root}/results/hybrid_unseen_pairs.jsonl"),),
           (_script("hybrid_unseen_pairs"),), needs_record=False),
-    Study("hybrid_state_network", "does projecting the linear physics out of FNN(u, x, v) help its posterior?",
+    Study("hybrid_state_network", "does projecting the linear physics out of FNN(u, x, v) help its posterior, "
+          "and which effect of the table did it learn?",
           (_script("hybrid_state_network", "--seconds", "6", "--chains", "1", "--warmup", "10", "--draws", "10",
+                   "--name-effects",
                    "--runs", "{root}/runs/hybrid_state_network",
                    "--out", "{root}/results/hybrid_state_network.jsonl"),),
           (_script("hybrid_state_network"),), needs_record=False),

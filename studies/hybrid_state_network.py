@@ -1,8 +1,10 @@
-"""Does projecting the linear physics out of a network of the states help its posterior?
+"""Does projecting the linear physics out of a network of the states help its posterior,
+and can the effect it learned be named?
 
-A synthetic record with a known state-dependent torque on yaw (a quadratic drag
-``-c omega_psi |omega_psi|``, hidden from the model) under random voltage steps, split
-60 / 40 into a training and a test window.  For each projection of the FNN(u, x, v) on yaw
+A synthetic record with a known state-dependent torque on yaw (``--hidden-effect``, at its
+value in ``discovery_confusion.HIDDEN``; default a quadratic drag ``-c omega_psi
+|omega_psi|``, hidden from the model) under random voltage steps, split 60 / 40 into a
+training and a test window.  For each projection of the FNN(u, x, v) on yaw
 (``none``: the raw network; ``u``: orthogonal to the gains' voltages and the yaw rate over
 the training window, :mod:`heli_uq.model.terms.neural_torque`), NUTS over every weight and
 the physics (every inertia free unless ``--fix-mass``):
@@ -12,12 +14,18 @@ the physics (every inertia free unless ``--fix-mass``):
 * yaw RMSE and 90 % coverage on the test window;
 * the trade-off of the yaw gains and damping with the network's linear part
   (:func:`heli_uq.output.network.gain_trade_off`: correlation, and the gain's sd against
-  the sd of the sum the data fix).
+  the sd of the sum the data fix);
+* with ``--name-effects``: the effects of the table the network's torque is made of
+  (:func:`heli_uq.discovery.network_effects.network_effects_of`: inclusion probabilities,
+  the selected effects), and, if any, the model with those effects in place of the
+  network refitted by NUTS (test yaw RMSE and coverage, the hidden values' 95 % intervals).
 
 One JSON line per posterior goes to ``--out`` (default
 ``studies/results/hybrid_state_network.jsonl``).  Usage::
 
     python studies/hybrid_state_network.py [--seconds 24] [--seed 1] [--projections none u]
+    python studies/hybrid_state_network.py --hidden-effect yaw:torsional_spring --projections u --name-effects
+    python studies/hybrid_state_network.py --posterior out/hybrid_uxv/posterior.nc
 """
 
 from __future__ import annotations
@@ -29,9 +37,8 @@ import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from _study import add_run_arguments, record_line  # noqa: E402
+from discovery_confusion import HIDDEN  # noqa: E402  (the confusion study's hidden values)
 
-#: The hidden yaw drag [N m s^2/rad^2] (yaw rates of 0.2-1 rad/s: 0.004-0.1 N m).
-DRAG = 0.1
 #: Fraction of the record in the training window.
 TRAIN_FRACTION = 0.6
 #: NUTS target acceptance (the hybrid rig runs' value).
@@ -46,6 +53,13 @@ def main(argv=None):
     ap.add_argument("--hidden", type=int, default=2)
     ap.add_argument("--projections", nargs="+", default=["none", "u"], choices=["none", "u", "1,u"])
     ap.add_argument("--fix-mass", action="store_true", help="fix m at the truth (plain log coordinates)")
+    ap.add_argument("--hidden-effect", default="yaw:quadratic_drag",
+                    help="axis:effect hidden in the record, at its value in discovery_confusion.HIDDEN")
+    ap.add_argument("--name-effects", action="store_true",
+                    help="name the network's torque by the effects table and refit the named model")
+    ap.add_argument("--posterior", nargs="+", metavar="POSTERIOR_NC",
+                    help="only name the effects of stored posteriors of a network of the states (e.g. the "
+                         "rig's, from heli-uq sample --model hybrid --nn-inputs u,x,v)")
     add_run_arguments(ap, "hybrid_state_network", chains=2, warmup=200, draws=200)
     args = ap.parse_args(argv)
 
@@ -58,8 +72,12 @@ def main(argv=None):
     from heli_uq.probability import PriorSet
     from heli_uq.simulation import synthetic_experiment
 
-    truth = build_model(["yaw:quadratic_drag"])
-    values = {**RIG_FIT, "c_yaw": DRAG}
+    if args.posterior:
+        return _name_stored(args, argv)
+    truth = build_model([args.hidden_effect])
+    axis, kind = args.hidden_effect.split(":")
+    hidden = {f"{name}_{axis}": value for name, value in HIDDEN[axis][kind].items()}
+    values = {**RIG_FIT, **hidden}
     record = synthetic_experiment(values, RIG_FIT_X0, duration=args.seconds, inputs="steps",
                                   seed=args.record_seed, noise_std=(0.003, 0.008), model=truth)  # fmt: skip
     cut = round(TRAIN_FRACTION * args.seconds, 2)
@@ -72,7 +90,9 @@ def main(argv=None):
             priors = priors.updated(model, {"m": Prior("fixed", values["m"])})
         t0 = time.perf_counter()
         print(f"project={project}: NUTS {args.chains} x ({args.warmup} + {args.draws})", flush=True)
-        _, summary = sample_posterior(record, pathlib.Path(args.runs) / f"{project}_seed{args.seed}",
+        tag = "" if args.hidden_effect == "yaw:quadratic_drag" else f"_{kind}"
+        run_dir = pathlib.Path(args.runs) / f"{project}_seed{args.seed}{tag}"
+        idata, summary = sample_posterior(record, run_dir,
                                       model=model, train=train, test=test, priors=priors, error="iid",
                                       chains=args.chains, warmup=args.warmup, draws=args.draws,
                                       target_accept=TARGET_ACCEPT, seed=args.seed,
@@ -80,7 +100,8 @@ def main(argv=None):
         te = summary["windows"]["test"]
         line = {"project": project, "fix_mass": args.fix_mass, "seconds_record": args.seconds,
                 "record_seed": args.record_seed, "seed": args.seed, "hidden": args.hidden,
-                "drag": DRAG, "train": list(train), "test": list(test),
+                "hidden_effect": args.hidden_effect, "hidden_values": hidden,
+                "train": list(train), "test": list(test),
                 "chains": args.chains, "warmup": args.warmup, "draws": args.draws,
                 "rhat_max": summary.get("rhat_max"),
                 "worst_rhat_variable": summary.get("worst_rhat_variable"),
@@ -90,8 +111,59 @@ def main(argv=None):
                 "test_rmse_psi": te["rmse"]["psi"], "test_coverage90_psi": te["coverage90"]["psi"],
                 "trade_off": summary.get("gain_trade_off", {}).get("yaw"),
                 "health": summary["health"]["flags"], "seconds": time.perf_counter() - t0}  # fmt: skip
+        if args.name_effects:
+            line["named"] = _name_and_refit(args, record, train, test, priors, idata, run_dir, hidden, tag)
+            line["seconds"] = time.perf_counter() - t0
         record_line(__file__, argv, args.out, line)
     return 0
+
+
+def _name_stored(args, argv) -> int:
+    """One line per stored posterior: the effects its network of the states is made of."""
+    from heli_uq.discovery.network_effects import network_effects_of
+    from heli_uq.output.inference_data import load_posterior
+
+    for path in args.posterior:
+        t0 = time.perf_counter()
+        idata, model = load_posterior(path)
+        named = network_effects_of(idata, model, "yaw")
+        record_line(__file__, argv, args.out, {"posterior": str(path), "model": model.label, "named": named,
+                                               "seconds": time.perf_counter() - t0})  # fmt: skip
+    return 0
+
+
+def _name_and_refit(args, record, train, test, priors, idata, run_dir, hidden, tag) -> dict:
+    """The effects the network's torque is made of and, if any, the named model's NUTS
+    refit in the network's place: its test yaw fit and the hidden values' 95 % intervals."""
+    import numpy as np
+
+    from heli_uq.discovery.network_effects import network_effects_of
+    from heli_uq.discovery.network_equation import equation_model
+    from heli_uq.output import sample_posterior
+    from heli_uq.output.inference_data import load_posterior
+    from heli_uq.probability import PriorSet
+
+    _, model = load_posterior(run_dir / "posterior.nc")  # the model as adapted to the record
+    named = network_effects_of(idata, model, "yaw")
+    print(f"named: {named['selected']} (inclusion {named['inclusion']})", flush=True)
+    if not named["selected"]:
+        return named
+    refit = equation_model(model, "yaw", named["selected"])
+    fixed = {n: p for n, p in priors.params.items() if p.kind == "fixed" and n in refit.names}
+    refit_priors = PriorSet.default(refit).updated(refit, fixed) if fixed else PriorSet.default(refit)
+    post, rs = sample_posterior(record, pathlib.Path(args.runs) / f"named_seed{args.seed}{tag}", model=refit,
+                                train=train, test=test, priors=refit_priors, error="iid", chains=args.chains,
+                                warmup=args.warmup, draws=args.draws, target_accept=TARGET_ACCEPT,
+                                seed=args.seed, progress=False)  # fmt: skip
+    te = rs["windows"]["test"]
+    intervals = {n: [float(q) for q in np.quantile(np.asarray(post.posterior[n]), [0.025, 0.975])]
+                 for n in hidden if n in post.posterior}  # fmt: skip
+    named["refit"] = {"model": refit.label, "rhat_max": rs.get("rhat_max"),
+                      "divergences": rs.get("divergences"), "test_rmse_psi": te["rmse"]["psi"],
+                      "test_coverage90_psi": te["coverage90"]["psi"], "ci95": intervals,
+                      "holds_truth": {n: lo <= hidden[n] <= hi for n, (lo, hi) in intervals.items()},
+                      "health": rs["health"]["flags"]}  # fmt: skip
+    return named
 
 
 if __name__ == "__main__":

@@ -25,8 +25,8 @@ training window's distinct voltage pairs, :mod:`heli_uq.output.network`):
    :func:`equation_model` replaces the network by a
    :class:`~heli_uq.model.terms.FeatureTorque` of them, for a NUTS refit.
 
-A network of states (``u,x,v``) is not handled: its torque depends on the trajectory,
-not on a fixed grid of inputs.
+A network of the states (``u,x,v``) is named by the effects table instead
+(:mod:`heli_uq.discovery.network_effects`).
 
 Layer 8 (discovery).
 """
@@ -40,9 +40,10 @@ import pysindy as ps
 
 from heli_uq.errors import ParameterError
 from heli_uq.model.spec import with_effects
+from heli_uq.model.terms import EFFECTS
 from heli_uq.model.terms.feature_torque import FEATURES
 
-__all__ = ["recover_equation", "equation_model", "LIBRARY", "INCLUDE"]
+__all__ = ["recover_equation", "equation_model", "bic_path_fit", "LIBRARY", "INCLUDE"]
 
 #: Default library: the paper's kind (polynomials and trigonometric functions of u), with
 #: features that duplicate others on the rig's positive voltages (|u|u = u^2) left out.
@@ -63,7 +64,7 @@ def _projector(basis: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.eye(k) - basis @ np.linalg.pinv(basis.T @ bw) @ bw.T
 
 
-def _bic_path_fit(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def bic_path_fit(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Coefficients (m,) of the least-BIC model on pysindy's stepwise path of ``y ~ x``."""
     k = x.shape[0]
     opt = ps.SSR(alpha=ALPHA, criteria="model_residual", max_iter=x.shape[1])
@@ -127,7 +128,7 @@ def recover_equation(torque, points: dict, weights=None, *, project: str = "u", 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for s in range(torque.shape[0]):
-            coefs[s] = _bic_path_fit(x, y[s])
+            coefs[s] = bic_path_fit(x, y[s])
     kept = coefs != 0
     inclusion = {n: float(kept[:, i].mean()) for i, n in enumerate(names)}
     selected = [n for n in names if inclusion[n] >= include]
@@ -148,8 +149,14 @@ def recover_equation(torque, points: dict, weights=None, *, project: str = "u", 
 
 
 def equation_model(model, axis: str, selected) -> object:
-    """``model`` with its neural term on ``axis`` replaced by a feature torque of
-    ``selected`` (the mechanistic model alone when nothing was selected)."""
-    add = [{"effect": "feature_torque", "axis": axis, "features": list(selected)}] if selected else []
+    """``model`` with its neural term on ``axis`` replaced by what was recovered from it:
+    named effects of the vocabulary (kinds from
+    :func:`heli_uq.discovery.network_effects.name_network_effects`) on ``axis``, and a
+    feature torque of the selected voltage features (:func:`recover_equation`); the model
+    without the network when nothing was selected."""
+    named = [s for s in selected if s in EFFECTS]
+    features = [s for s in selected if s not in EFFECTS]
+    add = [{"effect": kind, "axis": axis} for kind in named]
+    add += [{"effect": "feature_torque", "axis": axis, "features": features}] if features else []
     return with_effects(model, lambda e: not (e["effect"] == "neural_torque" and e["axis"] == axis),
                         add, where="equation_model")  # fmt: skip

@@ -1,0 +1,170 @@
+"""Named effects from a network of the states: the effects' columns equal their torque
+formulas written out by hand (or finite differences of the model's force, for the effects
+that act through the gains); draws of a known effect's torque name that effect with its
+magnitude inside the interval; draws that do not agree, or agree on a friction of the wrong
+sign, name nothing; the named effects replace the network."""
+
+import numpy as np
+import pytest
+
+from heli_uq.discovery.network_effects import (
+    EXPLAINED_MIN,
+    effect_columns,
+    input_dependence,
+    name_network_effects,
+)
+from heli_uq.discovery.network_equation import equation_model
+from heli_uq.errors import ParameterError
+from heli_uq.model import RIG_FIT, build_model
+from heli_uq.model.terms import NeuralTorque
+from heli_uq.model.terms.coulomb_friction import OMEGA_S
+
+#: Agreement of a column with its closed form (autodiff of a formula: rounding).
+EXACT = 1e-12
+#: Agreement with a central difference of the force at step FD_STEP.
+FD_TOL, FD_STEP = 1e-6, 1e-6
+#: Hidden magnitudes of the "posterior draws": F_c [N m], c [N m s^2/rad^2].
+TRUE_F_C, TRUE_C = 0.012, 0.05
+#: Spread of the draws around the truth [N m] (the network torque's posterior sd on the
+#: rig's FNN(u, x, v) run was ~0.01 N m per point, on 0.04 N m of torque).
+DRAW_NOISE = 0.002
+#: A true effect is kept by at least this fraction of draws.
+TRUE_INCLUSION = 0.9
+
+
+def _points(seed=0, k=200):
+    rng = np.random.default_rng(seed)
+    return {"theta": rng.uniform(-0.65, -0.3, k), "psi": rng.uniform(-1.0, 2.0, k),
+            "omega_theta": rng.uniform(-0.3, 0.3, k), "omega_psi": rng.uniform(-0.8, 0.8, k),
+            "u_theta": rng.uniform(1.2, 1.5, k), "u_psi": rng.uniform(0.5, 1.55, k)}  # fmt: skip
+
+
+def _basis(points):
+    return NeuralTorque("yaw", "u,x,v", 2, "u").basis(points, np)
+
+
+@pytest.fixture(scope="module")
+def yaw_columns():
+    points = _points()
+    return points, effect_columns(build_model(), RIG_FIT, "yaw", points)
+
+
+def test_columns_are_the_effects_torques_per_unit_magnitude(yaw_columns):
+    points, cols = yaw_columns
+    w = points["omega_psi"]
+    closed = {"coulomb_friction": ("F_c_yaw", -np.tanh(w / OMEGA_S)),
+              "quadratic_drag": ("c_yaw", -w * np.abs(w)),
+              "torsional_spring": ("k_yaw", -points["psi"]),  # the rest angle's probe value: 0
+              "quadratic_thrust": ("k_q_yaw", -points["u_psi"] * np.abs(points["u_psi"])),
+              "torque_offset": ("T_0_yaw", np.ones_like(w))}  # fmt: skip
+    for kind, (name, column) in closed.items():
+        assert cols[kind][0] == name
+        np.testing.assert_allclose(cols[kind][1], column, atol=EXACT, err_msg=kind)
+
+
+def test_a_dead_band_column_acts_through_the_fitted_gains(yaw_columns):
+    """d T_yaw / d delta at the probe, against a central difference of the model's force."""
+    import jax.numpy as jnp
+
+    points, cols = yaw_columns
+    model = build_model(["yaw:deadband"])
+    name, column = cols["deadband"]
+    p0 = model.complete({**RIG_FIT, name: model.parameter(name).start_value()})
+
+    def force(delta, i):
+        _, q = model.prepare({**p0, name: delta})
+        x = jnp.array([points["theta"][i], points["psi"][i]])
+        v = jnp.array([points["omega_theta"][i], points["omega_psi"][i]])
+        u = jnp.stack(model.input_voltages(q, jnp.array([points["u_theta"][i], points["u_psi"][i]])))
+        return float(model.force_vector(q, x, v, u)[1])
+
+    fd = [(force(p0[name] + FD_STEP, i) - force(p0[name] - FD_STEP, i)) / (2 * FD_STEP) for i in range(10)]
+    np.testing.assert_allclose(column[:10], fd, atol=FD_TOL)
+    # the yaw motor's torque is -K_psi_psi u_psi: a wider dead band on positive voltages
+    # takes K_psi_psi per volt of it away
+    np.testing.assert_allclose(column, RIG_FIT["K_psi_psi"], atol=EXACT)
+
+
+def test_effects_the_model_has_are_not_regressed_on():
+    points = _points(k=5)
+    cols = effect_columns(build_model(["yaw:coulomb_friction"]), RIG_FIT, "yaw", points)
+    assert "coulomb_friction" not in cols and "quadratic_drag" in cols
+    with pytest.raises(ParameterError, match="unknown effect"):
+        effect_columns(build_model(), RIG_FIT, "yaw", points, effects=["backlash"])
+
+
+def _draws(points, cols, truth: dict, seed=1, n=120):
+    rng = np.random.default_rng(seed)
+    torque = sum(value * cols[kind][1] for kind, value in truth.items())
+    return torque[None, :] + DRAW_NOISE * rng.standard_normal((n, len(points["psi"])))
+
+
+def _supports():
+    return {name: "nonnegative" for name in ("F_c_yaw", "c_yaw", "k_yaw", "delta_yaw")}
+
+
+def test_a_friction_and_a_drag_are_named_with_their_magnitudes(yaw_columns):
+    points, cols = yaw_columns
+    draws = _draws(points, cols, {"coulomb_friction": TRUE_F_C, "quadratic_drag": TRUE_C})
+    out = name_network_effects(draws, cols, _basis(points), supports=_supports())
+    assert sorted(out["selected"]) == ["coulomb_friction", "quadratic_drag"]
+    assert min(out["inclusion"]["coulomb_friction"], out["inclusion"]["quadratic_drag"]) >= TRUE_INCLUSION
+    for kind, true in (("coulomb_friction", TRUE_F_C), ("quadratic_drag", TRUE_C)):
+        lo, hi = out["magnitudes"][kind]["ci95"]
+        assert lo <= true <= hi, (kind, lo, hi)
+    # the linear physics' span is projected out: the rate's linear part is the damping's
+    assert "deadband" not in out["selected"] and "torque_offset" not in out["selected"]
+
+
+def test_an_anti_friction_is_not_a_friction(yaw_columns):
+    """The same torque with the friction's sign flipped: the draws agree on it, but a
+    negative F_c is outside its support."""
+    points, cols = yaw_columns
+    draws = _draws(points, cols, {"coulomb_friction": -TRUE_F_C})
+    out = name_network_effects(draws, cols, _basis(points), supports=_supports())
+    assert "coulomb_friction" not in out["selected"]
+    assert out["inclusion"]["coulomb_friction"] < 0.5
+
+
+def test_draws_that_disagree_name_nothing(yaw_columns):
+    """Each draw a different smooth function of the states (random mixtures of the
+    columns, zero on average): the least-BIC path keeps features in most draws, the
+    credibility of the joint fit keeps them out."""
+    points, cols = yaw_columns
+    rng = np.random.default_rng(3)
+    stack = np.column_stack([c for _, c in cols.values()])
+    draws = (rng.standard_normal((120, stack.shape[1])) * 0.01 / np.abs(stack).max(0)) @ stack.T
+    out = name_network_effects(draws, cols, _basis(points), supports=_supports())
+    assert out["selected"] == []
+    assert out["not_credible"]  # the path kept something in most draws; it was not credible
+
+
+def test_named_effects_replace_the_network():
+    network = {"effect": "neural_torque", "axis": "yaw", "inputs": "u,x,v"}
+    model = build_model([network, "pitch:torque_offset"])
+    refit = equation_model(model, "yaw", ["coulomb_friction", "torque_offset"])
+    kinds = {(e["effect"], e["axis"]) for e in refit.describe()["effects"]}
+    assert kinds == {("coulomb_friction", "yaw"), ("torque_offset", "yaw"), ("torque_offset", "pitch")}
+
+
+def test_a_torque_the_table_does_not_hold_is_not_named(yaw_columns):
+    """A credible offset under a larger torque of the pitch rate (no effect of the table
+    on yaw): the offset alone explains too little of the torque to name; without the
+    pitch-rate torque it is named."""
+    points, cols = yaw_columns
+    other = 0.02 * np.tanh(points["omega_theta"] / 0.1)
+    offset = _draws(points, cols, {"torque_offset": 0.005})
+    out = name_network_effects(offset + other[None, :], cols, _basis(points), supports=_supports())
+    assert out["selected"] == [] and out["unexplained"]
+    assert out["r2"] < EXPLAINED_MIN
+    alone = name_network_effects(offset, cols, _basis(points), supports=_supports())
+    assert alone["selected"] == ["torque_offset"] and not alone["unexplained"]
+    # on positive yaw voltages a dead band is a constant torque: the offset's column
+    assert alone["ties"] == {"torque_offset": ["deadband"]} and "deadband" not in alone["inclusion"]
+
+
+def test_input_dependence_finds_the_input_a_torque_is_a_function_of():
+    points = _points(k=400)
+    out = input_dependence(np.tanh(points["omega_theta"] / 0.1), points)
+    assert out["omega_theta"] > 0.9
+    assert max(v for k, v in out.items() if k != "omega_theta") < 0.1  # independent inputs

@@ -10,8 +10,10 @@ import pytest
 from heli_uq.discovery.network_effects import (
     EXPLAINED_MIN,
     effect_columns,
+    effects_sentence,
     input_dependence,
     name_network_effects,
+    network_effects_of,
 )
 from heli_uq.discovery.network_equation import equation_model
 from heli_uq.errors import ParameterError
@@ -168,3 +170,41 @@ def test_input_dependence_finds_the_input_a_torque_is_a_function_of():
     out = input_dependence(np.tanh(points["omega_theta"] / 0.1), points)
     assert out["omega_theta"] > 0.9
     assert max(v for k, v in out.items() if k != "omega_theta") < 0.1  # independent inputs
+
+
+def test_the_sentence_says_what_was_named_or_what_the_torque_depends_on():
+    depends = {"theta": 0.1, "psi": 0.1, "omega_theta": 0.51, "omega_psi": 0.2, "u_theta": 0.1, "u_psi": 0.1}
+    named = {"selected": ["coulomb_friction"], "inclusion": {"coulomb_friction": 1.0}, "r2": 0.26,
+             "explained": {"coulomb_friction": 0.26}, "depends_on": depends}  # fmt: skip
+    assert effects_sentence("yaw", named) == (
+        "the network of the states on yaw is made of: coulomb_friction (in 100% of the draws); together 26% "
+        "of its torque; its torque depends most on omega_theta (51% of its variance by that input alone)")
+    nothing = {**named, "selected": [], "explained": {"coulomb_friction": 0.007, "torsional_spring": 0.023}}
+    assert effects_sentence("yaw", nothing) == (
+        "the network of the states on yaw is no effect of the table (the best, torsional_spring, explains 2% "
+        "of it); its torque depends most on omega_theta (51% of its variance by that input alone)")
+
+
+@pytest.mark.long
+def test_cli_sample_names_what_its_network_of_the_states_learned(tmp_path, capsys):
+    """``heli-uq sample --model hybrid --nn-inputs u,x,v`` stores in summary.json, and
+    prints, what the library finds in the posterior it wrote (tiny size: Laplace)."""
+    import json
+
+    from heli_uq.cli import main
+    from heli_uq.model import RIG_FIT_X0
+    from heli_uq.output.inference_data import load_posterior
+    from heli_uq.simulation import synthetic_experiment
+
+    rec = synthetic_experiment({**RIG_FIT, "F_c_yaw": TRUE_F_C}, RIG_FIT_X0, duration=6.0, inputs="steps",
+                               seed=5, noise_std=(0.003, 0.008),
+                               model=build_model(["yaw:coulomb_friction"]))  # fmt: skip
+    out = tmp_path / "o"
+    main(["sample", "--data", str(rec.to_csv(tmp_path / "rec.csv")), "--model", "hybrid",
+          "--nn-inputs", "u,x,v", "--sampler", "laplace", "--error", "iid", "--chains", "1",
+          "--draws", "60", "--no-progress", "--out", str(out)])  # fmt: skip
+    stored = json.loads((out / "summary.json").read_text())["network_effects"]
+    idata, model = load_posterior(out / "posterior.nc")
+    again = json.loads(json.dumps(network_effects_of(idata, model, "yaw")))
+    assert set(stored) == {"yaw"} and stored["yaw"] == again
+    assert effects_sentence("yaw", again) in capsys.readouterr().out

@@ -57,7 +57,7 @@ from heli_uq.model.terms.base import AbstractInputMap, weighted_projection
 from heli_uq.probability.priors import fixed_values
 
 __all__ = ["name_network_effects", "effect_columns", "network_effects_of", "input_dependence",
-           "EXPLAINED_MIN"]  # fmt: skip
+           "state_networks", "effects_sentence", "EXPLAINED_MIN"]  # fmt: skip
 
 #: Grid inputs of a network of the states (coords of ``nn_point_<axis>``).
 STATE_INPUTS = ("theta", "psi", "omega_theta", "omega_psi", "u_theta", "u_psi")
@@ -295,3 +295,23 @@ def input_dependence(torque, points: dict, bins: int = DEPENDENCE_BINS) -> dict:
             fit[group] = torque[group].mean()
         out[name] = float(1 - np.sum((torque - fit) ** 2) / max(spread, 1e-300))
     return out
+
+
+def state_networks(model) -> list[str]:
+    """The axes of ``model``'s neural terms that read the states (``inputs`` other than ``u``)."""
+    return [t.axis for t in model.torques if isinstance(t, NeuralTorque) and t.inputs != "u"]
+
+
+def effects_sentence(axis: str, found: dict) -> str:
+    """One line for a person: what :func:`network_effects_of` found on ``axis``."""
+    where = max(found["depends_on"], key=found["depends_on"].get) if found.get("depends_on") else None
+    depends = (f"; its torque depends most on {where} ({found['depends_on'][where]:.0%} of its "
+               f"variance by that input alone)") if where else ""  # fmt: skip
+    if found["selected"]:
+        named = ", ".join(f"{kind} (in {found['inclusion'][kind]:.0%} of the draws)"
+                          for kind in found["selected"])  # fmt: skip
+        return (f"the network of the states on {axis} is made of: {named}; together "
+                f"{found['r2']:.0%} of its torque{depends}")  # fmt: skip
+    best = max(found["explained"], key=found["explained"].get) if found["explained"] else None
+    best = f" (the best, {best}, explains {found['explained'][best]:.0%} of it)" if best else ""
+    return f"the network of the states on {axis} is no effect of the table{best}{depends}"

@@ -37,7 +37,7 @@ from heli_uq.probability.problem import make_problem
 from heli_uq.simulation.reference import solver_error
 from heli_uq.simulation.stiffness import stiffness_check
 
-__all__ = ["sample_posterior", "bands_figure", "parameter_summary", "SOLVER_TOL"]
+__all__ = ["sample_posterior", "bands_figure", "parameter_summary", "write_summary", "SOLVER_TOL"]
 
 #: The fixed-step solver must stay within this angle error [rad] of the adaptive reference
 #: at the posterior mean; a larger error is reported as a warning.
@@ -224,7 +224,7 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     stage("writing posterior.nc, summary.csv, summary.json, bands.png")
     save_netcdf(idata, out / "posterior.nc")
     atomic_write_text(out / "summary.csv", summary_table(idata).to_csv())
-    atomic_write_text(out / "summary.json", json.dumps(summary, indent=1, default=_jsonable))
+    write_summary(out, summary)
     save_figure(bands_figure(idata, summary), out / "bands.png")
     return idata, summary
 
@@ -244,6 +244,11 @@ def bands_figure(idata, summary: dict):
         title=(f"Posterior predictive ({summary['sampler']}, {summary['error_model']} errors, "
                f"{summary['model_label']}): {pathlib.Path(idata.posterior.attrs['source']).name}"),
     )  # fmt: skip
+
+
+def write_summary(out, summary: dict) -> None:
+    """Write ``summary`` to ``out/summary.json`` (atomically; arrays as lists)."""
+    atomic_write_text(pathlib.Path(out) / "summary.json", json.dumps(summary, indent=1, default=_jsonable))
 
 
 def _jsonable(obj):

@@ -122,7 +122,7 @@ def effect_columns(model, params: dict, axis: str, points: dict, effects=None) -
     out = {}
     for kind in kinds:
         full = with_effects(base, add=[{"effect": kind, "axis": axis}], where="network effects")
-        new = [par for par in full.parameters() if par.name not in base.names]
+        new = EFFECTS[kind](axis=axis).parameters()  # the magnitude first
         p = full.complete({**{k: float(val) for k, val in params.items() if k in base.names},
                            **{par.name: par.start_value() for par in new}})  # fmt: skip
         magnitude = new[0].name
@@ -272,10 +272,7 @@ def network_effects_of(idata, model, axis: str = "yaw", effects=None, *, include
              **{v: float(post[v].mean()) for v in post.data_vars if post[v].ndim == 2}}
     torque = np.asarray(post[name], dtype=float).reshape(-1, len(points["psi"]))
     columns = effect_columns(model, means, axis, points, effects)
-    supports = {}
-    for kind, (par, _) in columns.items():
-        full = with_effects(_base(model), add=[{"effect": kind, "axis": axis}], where="network effects")
-        supports[par] = full.parameter(par).support
+    supports = {par: EFFECTS[kind](axis=axis).parameters()[0].support for kind, (par, _) in columns.items()}
     basis = term.basis(points, np) if term.projection else np.zeros((len(torque.T), 0))
     out = name_network_effects(torque, columns, basis, supports=supports, include=include)
     return {**out, "depends_on": input_dependence(torque.mean(axis=0), points)}

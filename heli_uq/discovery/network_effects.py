@@ -53,7 +53,7 @@ from heli_uq.discovery.network_equation import INCLUDE, bic_path_fit
 from heli_uq.errors import ParameterError
 from heli_uq.model.spec import with_effects
 from heli_uq.model.terms import EFFECTS, NeuralTorque
-from heli_uq.model.terms.base import AbstractInputMap, weighted_projection
+from heli_uq.model.terms.base import AbstractInputMap, residual_projector
 from heli_uq.probability.priors import fixed_values
 
 __all__ = ["name_network_effects", "effect_columns", "network_effects_of", "input_dependence",
@@ -171,7 +171,7 @@ def name_network_effects(torque, columns: dict, basis, *, supports=None, include
     torque = np.atleast_2d(np.asarray(torque, dtype=float))
     k = torque.shape[1]
     basis = np.asarray(basis, dtype=float).reshape(k, -1)
-    proj = np.eye(k) - basis @ weighted_projection(basis, np.ones(k))
+    proj = residual_projector(basis, np.ones(k))
     kinds = list(columns)
     cols = proj @ np.column_stack([columns[c][1] for c in kinds]) if kinds else np.zeros((k, 0))
     rms = np.sqrt(np.mean(cols**2, axis=0))
@@ -185,8 +185,8 @@ def name_network_effects(torque, columns: dict, basis, *, supports=None, include
     coefs = np.zeros((len(y), len(kinds)))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        for s in range(len(y)):
-            coefs[s] = bic_path_fit(x, y[s]) / rms if kinds else coefs[s]
+        for s in range(len(y) if kinds else 0):
+            coefs[s] = bic_path_fit(x, y[s]) / rms
     supports = supports or {}
     signed = np.array([supports.get(columns[c][0], "real") in ("nonnegative", "positive")
                        for c in kinds], dtype=bool)  # fmt: skip

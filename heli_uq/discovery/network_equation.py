@@ -41,6 +41,7 @@ import pysindy as ps
 from heli_uq.errors import ParameterError
 from heli_uq.model.spec import with_effects
 from heli_uq.model.terms import EFFECTS
+from heli_uq.model.terms.base import residual_projector
 from heli_uq.model.terms.feature_torque import FEATURES
 
 __all__ = ["recover_equation", "equation_model", "bic_path_fit", "LIBRARY", "INCLUDE"]
@@ -53,15 +54,6 @@ LIBRARY = ("1", "u_theta^2", "u_psi^2", "u_theta*u_psi", "u_theta^3", "u_psi^3",
 ALPHA = 1e-10
 #: Inclusion probability from which a feature enters the recovered expression.
 INCLUDE = 0.5
-
-
-def _projector(basis: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """``I - B (B^T W B)^+ B^T W``: removes the weighted least-squares fit on ``basis``."""
-    k = w.size
-    if basis.shape[1] == 0:
-        return np.eye(k)
-    bw = basis * w[:, None]
-    return np.eye(k) - basis @ np.linalg.pinv(basis.T @ bw) @ bw.T
 
 
 def bic_path_fit(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -116,7 +108,7 @@ def recover_equation(torque, points: dict, weights=None, *, project: str = "u", 
     owned = {"u": ("u_theta", "u_psi"), "1,u": ("1", "u_theta", "u_psi"), "none": ()}[project]
     basis = np.column_stack([np.asarray(FEATURES[f][0](u)) * np.ones(k) for f in owned]) if owned \
         else np.zeros((k, 0))
-    proj = _projector(basis, w)
+    proj = residual_projector(basis, w)
     names = [f for f in library if f not in owned]
     cols = proj @ np.column_stack([np.asarray(FEATURES[f][0](u)) * np.ones(k) for f in names])
     rms = np.sqrt(w @ cols**2)

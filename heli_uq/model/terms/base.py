@@ -56,6 +56,13 @@ def weighted_projection(basis, weights) -> np.ndarray:
     return np.linalg.pinv(root_w[:, None] * basis, rcond=1e-10) * root_w[None, :]
 
 
+def residual_projector(basis, weights) -> np.ndarray:
+    """``I - basis @ P`` (k, k) with ``P`` from :func:`weighted_projection`: applied to values
+    (k,), what the weighted least-squares fit on ``basis`` (k, m) leaves (m = 0: identity)."""
+    basis = np.asarray(basis, dtype=float)
+    return np.eye(len(basis)) - basis @ weighted_projection(basis, weights)
+
+
 def gain_projection(pairs, weights, intercept: bool) -> np.ndarray:
     """Rows ``P`` (3, k) of :func:`weighted_projection` for values at voltage pairs
     ``pairs`` (k, 2) [V] on ``(1,) u_theta, u_psi`` (weights: samples held at each pair;

@@ -55,7 +55,7 @@ def cmd_sample(args) -> int:
     out = out_dir(args.out)
     if args.sampler == "prior":
         return _prior_check(args, record, model, priors, train, test, out)
-    _, summary = sample_posterior(
+    idata, summary = sample_posterior(
         record, out, model=model, train=train, test=test, sampler=args.sampler, error=args.error,
         priors=priors, chains=args.chains, warmup=args.warmup, draws=args.draws,
         seed=args.seed, resume=args.resume, progress=not args.no_progress,
@@ -78,22 +78,22 @@ def cmd_sample(args) -> int:
         print("effect parameters (mean, 95 % interval): " + "; ".join(
             f"{n} = {v['mean']:.4g} [{v['ci95'][0]:.4g}, {v['ci95'][1]:.4g}] {v['unit']}"
             for n, v in effects.items()))  # fmt: skip
-    _name_state_networks(model, out, summary)
+    _name_state_networks(model, idata, out, summary)
     print(f"wrote {out / 'posterior.nc'}, summary.csv, summary.json, bands.png")
     return report_health(summary, args.strict)
 
 
-def _name_state_networks(model, out, summary: dict) -> None:
+def _name_state_networks(model, idata, out, summary: dict) -> None:
     """For a network of the states: which effects of the table it learned
     (:func:`heli_uq.discovery.network_effects.network_effects_of`), printed and stored in
     summary.json as ``network_effects``."""
     from heli_uq.discovery.network_effects import effects_sentence, network_effects_of, state_networks
-    from heli_uq.output.inference_data import load_posterior
+    from heli_uq.model.spec import model_from_description
     from heli_uq.output.posterior_study import write_summary
 
     if not state_networks(model):
         return
-    idata, adapted = load_posterior(out / "posterior.nc")  # the model as adapted to the record
+    adapted = model_from_description(idata.posterior.attrs["model"])  # as adapted to the record
     summary["network_effects"] = {axis: network_effects_of(idata, adapted, axis)
                                   for axis in state_networks(model)}  # fmt: skip
     for axis, found in summary["network_effects"].items():

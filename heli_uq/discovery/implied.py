@@ -29,17 +29,18 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.signal import savgol_filter
 
+from heli_uq.data.rates import smoothed_derivatives
 from heli_uq.model import HeliModel, build_model
 from heli_uq.model.terms.rigid_body import mass_matrix
 
 __all__ = ["ImpliedTorque", "implied_torque", "effect_features", "base_features",
            "SMOOTH_WINDOW_S"]  # fmt: skip
 
-#: Savitzky-Golay window [s] (cubic) for the rates and accelerations of the measured angles.
+#: Savitzky-Golay window [s] (cubic, :func:`heli_uq.data.rates.smoothed_derivatives`) for the
+#: rates and accelerations of the measured angles: twice the rates' window, since a second
+#: derivative amplifies the noise more.
 SMOOTH_WINDOW_S = 0.5
-_SMOOTH_ORDER = 3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,13 +67,6 @@ class ImpliedTorque:
     tau: np.ndarray
 
 
-def _smooth(y: np.ndarray, dt: float, window_s: float):
-    n = max(5, int(round(window_s / dt)) | 1)
-    n = min(n, (y.shape[0] - 1) | 1 if y.shape[0] % 2 == 0 else y.shape[0])
-    x, v, a = (savgol_filter(y, n, _SMOOTH_ORDER, deriv=d, delta=dt, axis=0) for d in (0, 1, 2))
-    return x, v, a
-
-
 def implied_torque(model: HeliModel, params: dict, y, u, dt: float, *,
                    window_s: float = SMOOTH_WINDOW_S) -> ImpliedTorque:  # fmt: skip
     """The torque the data imply beyond the fitted ``model`` (module docstring).
@@ -90,7 +84,7 @@ def implied_torque(model: HeliModel, params: dict, y, u, dt: float, *,
         Sample time [s].
     """
     y = np.asarray(y, dtype=float)
-    x, v, a = _smooth(y, dt, window_s)
+    x, v, a = smoothed_derivatives(y, dt, window_s)
     p = _complete(model, params)
     g = jax.jit(jax.vmap(lambda xi, vi, ui: model.acceleration(model.prepare(p), xi, vi, ui)))
     resid = a - np.asarray(g(jnp.asarray(x), jnp.asarray(v), jnp.asarray(u, dtype=float)))

@@ -18,13 +18,19 @@ the physics (every inertia free unless ``--fix-mass``):
 * with ``--name-effects``: the effects of the table the network's torque is made of
   (:func:`heli_uq.discovery.network_effects.network_effects_of`: inclusion probabilities,
   the selected effects), and, if any, the model with those effects in place of the
-  network refitted by NUTS (test yaw RMSE and coverage, the hidden values' 95 % intervals).
+  network refitted by NUTS (test yaw RMSE and coverage, the hidden values' 95 % intervals);
+* with ``--check-named`` (implies ``--name-effects``): before the refit the named effects
+  are checked on held-out blocks of the training window by ``discover`` restricted to them
+  (:func:`heli_uq.discovery.network_effects.check_candidates`; needs a training window of
+  at least 20 s, e.g. ``--seconds 40``), and only what it adds is refitted.
 
 One JSON line per posterior goes to ``--out`` (default
 ``studies/results/hybrid_state_network.jsonl``).  Usage::
 
     python studies/hybrid_state_network.py [--seconds 24] [--seed 1] [--projections none u]
     python studies/hybrid_state_network.py --hidden-effect yaw:torsional_spring --projections u --name-effects
+    python studies/hybrid_state_network.py --hidden-effect yaw:coulomb_friction --record-seed 6 \
+        --seconds 40 --projections u --check-named
     python studies/hybrid_state_network.py --posterior out/hybrid_uxv/posterior.nc
 """
 
@@ -57,6 +63,8 @@ def main(argv=None):
                     help="axis:effect hidden in the record, at its value in discovery_confusion.HIDDEN")
     ap.add_argument("--name-effects", action="store_true",
                     help="name the network's torque by the effects table and refit the named model")
+    ap.add_argument("--check-named", action="store_true",
+                    help="check the named effects by discover on the training window before the refit")
     ap.add_argument("--posterior", nargs="+", metavar="POSTERIOR_NC",
                     help="only name the effects of stored posteriors of a network of the states (e.g. the "
                          "rig's, from heli-uq sample --model hybrid --nn-inputs u,x,v)")
@@ -111,7 +119,7 @@ def main(argv=None):
                 "test_rmse_psi": te["rmse"]["psi"], "test_coverage90_psi": te["coverage90"]["psi"],
                 "trade_off": summary.get("gain_trade_off", {}).get("yaw"),
                 "health": summary["health"]["flags"], "seconds": time.perf_counter() - t0}  # fmt: skip
-        if args.name_effects:
+        if args.name_effects or args.check_named:
             line["named"] = _name_and_refit(args, record, train, test, priors, idata, run_dir, hidden, tag)
             line["seconds"] = time.perf_counter() - t0
         record_line(__file__, argv, args.out, line)
@@ -132,6 +140,22 @@ def _name_stored(args, argv) -> int:
     return 0
 
 
+def _check(args, record, train, named, run_dir) -> dict:
+    """``discover`` on the training window, restricted to the named effects and their ties:
+    what it adds, its candidates' held-out scores and its decision."""
+    from heli_uq.discovery import discover
+    from heli_uq.discovery.network_effects import check_candidates
+
+    candidates = check_candidates({"yaw": named})
+    t0 = time.perf_counter()
+    result = discover(record, run_dir / "check", window=train, candidates=candidates,
+                      max_effects=len(candidates), seed=args.seed, budget="quick")  # fmt: skip
+    return {"candidates": candidates, "added": result["added"], "decision": result["decision"],
+            "scores": [{k: c.get(k) for k in ("effect", "axis", "score", "score_se")}
+                       for c in result["candidates"]],
+            "seconds": time.perf_counter() - t0}  # fmt: skip
+
+
 def _name_and_refit(args, record, train, test, priors, idata, run_dir, hidden, tag) -> dict:
     """The effects the network's torque is made of and, if any, the named model's NUTS
     refit in the network's place: its test yaw fit and the hidden values' 95 % intervals."""
@@ -146,9 +170,14 @@ def _name_and_refit(args, record, train, test, priors, idata, run_dir, hidden, t
     _, model = load_posterior(run_dir / "posterior.nc")  # the model as adapted to the record
     named = network_effects_of(idata, model, "yaw")
     print(f"named: {named['selected']} (inclusion {named['inclusion']})", flush=True)
-    if not named["selected"]:
+    kept = named["selected"]
+    if kept and args.check_named:
+        named["check"] = _check(args, record, train, named, run_dir)
+        kept = [a["effect"] for a in named["check"]["added"]]
+        print(f"kept by the held-out check: {kept}", flush=True)
+    if not kept:
         return named
-    refit = equation_model(model, "yaw", named["selected"])
+    refit = equation_model(model, "yaw", kept)
     fixed = {n: p for n, p in priors.params.items() if p.kind == "fixed" and n in refit.names}
     refit_priors = PriorSet.default(refit).updated(refit, fixed) if fixed else PriorSet.default(refit)
     post, rs = sample_posterior(record, pathlib.Path(args.runs) / f"named_seed{args.seed}{tag}", model=refit,

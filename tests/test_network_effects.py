@@ -9,6 +9,7 @@ import pytest
 
 from heli_uq.discovery.network_effects import (
     EXPLAINED_MIN,
+    check_candidates,
     effect_columns,
     effects_sentence,
     input_dependence,
@@ -163,6 +164,9 @@ def test_a_torque_the_table_does_not_hold_is_not_named(yaw_columns):
     assert alone["selected"] == ["torque_offset"] and not alone["unexplained"]
     # on positive yaw voltages a dead band is a constant torque: the offset's column
     assert alone["ties"] == {"torque_offset": ["deadband"]} and "deadband" not in alone["inclusion"]
+    # the held-out check tries the tied effect too; nothing named, nothing to check
+    assert check_candidates({"yaw": alone}) == ["yaw:torque_offset", "yaw:deadband"]
+    assert check_candidates({"yaw": out}) == []
 
 
 def test_input_dependence_finds_the_input_a_torque_is_a_function_of():
@@ -208,3 +212,28 @@ def test_cli_sample_names_what_its_network_of_the_states_learned(tmp_path, capsy
     again = json.loads(json.dumps(network_effects_of(idata, model, "yaw")))
     assert set(stored) == {"yaw"} and stored["yaw"] == again
     assert effects_sentence("yaw", again) in capsys.readouterr().out
+
+
+@pytest.mark.long
+def test_the_held_out_check_drops_a_named_effect_the_record_does_not_need(tmp_path):
+    """A network named an offset and a spring (as one named a spring beside a hidden
+    friction, studies/notes/hybrid.md); the record holds only the offset.  ``discover``
+    restricted to the named effects, on a training window, adds the offset and stops."""
+    from heli_uq.discovery import Budget, discover
+    from heli_uq.model import RIG_FIT_X0
+    from heli_uq.simulation import synthetic_experiment
+    from heli_uq.simulation.synthetic import ENCODER_QUANTUM
+
+    true_t0 = -0.04
+    rec = synthetic_experiment({**RIG_FIT, "T_0_yaw": true_t0}, RIG_FIT_X0, duration=30.0, inputs="rig_steps",
+                               noise_std=(0.003, 0.008), seed=11, model=build_model(["yaw:torque_offset"]),
+                               quantum=ENCODER_QUANTUM)  # fmt: skip
+    named = {"yaw": {"selected": ["torque_offset", "torsional_spring"], "ties": {}}}
+    candidates = check_candidates(named)
+    small = Budget(n_starts=2, cold_starts=0, draws=40, pair_top=2, chains=2, warmup=50, samples=50,
+                   max_tree_depth=5)  # fmt: skip
+    res = discover(rec, tmp_path, window=(0.0, 30.0), candidates=candidates, max_effects=len(candidates),
+                   budget=small, scheduler="serial", log=lambda m: None)  # fmt: skip
+    assert [(a["effect"], a["axis"]) for a in res["added"]] == [("torque_offset", "yaw")]
+    lo, hi = res["parameters"]["T_0"]["ci95"]
+    assert lo <= true_t0 <= hi

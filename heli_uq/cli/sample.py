@@ -78,16 +78,23 @@ def cmd_sample(args) -> int:
         print("effect parameters (mean, 95 % interval): " + "; ".join(
             f"{n} = {v['mean']:.4g} [{v['ci95'][0]:.4g}, {v['ci95'][1]:.4g}] {v['unit']}"
             for n, v in effects.items()))  # fmt: skip
-    _name_state_networks(model, idata, out, summary)
+    _name_state_networks(args, model, idata, out, summary, train)
     print(f"wrote {out / 'posterior.nc'}, summary.csv, summary.json, bands.png")
     return report_health(summary, args.strict)
 
 
-def _name_state_networks(model, idata, out, summary: dict) -> None:
+def _name_state_networks(args, model, idata, out, summary: dict, train) -> None:
     """For a network of the states: which effects of the table it learned
     (:func:`heli_uq.discovery.network_effects.network_effects_of`), printed and stored in
-    summary.json as ``network_effects``."""
-    from heli_uq.discovery.network_effects import effects_sentence, network_effects_of, state_networks
+    summary.json as ``network_effects``, and the ``discover`` command that checks the named
+    effects on held-out blocks of the training window."""
+    from heli_uq.data import parse_window
+    from heli_uq.discovery.network_effects import (
+        check_candidates,
+        effects_sentence,
+        network_effects_of,
+        state_networks,
+    )
     from heli_uq.model.spec import model_from_description
     from heli_uq.output.posterior_study import write_summary
 
@@ -98,6 +105,12 @@ def _name_state_networks(model, idata, out, summary: dict) -> None:
                                   for axis in state_networks(model)}  # fmt: skip
     for axis, found in summary["network_effects"].items():
         print(effects_sentence(axis, found))
+    candidates = check_candidates(summary["network_effects"])
+    if candidates:
+        window = train or (parse_window(args.window) if args.window else None)
+        where = f" --window {window[0]:g}:{window[1]:g}" if window else ""
+        print(f"check them on held-out blocks: heli-uq discover {args.data}{where} --candidates "
+              f"{','.join(candidates)} --max-effects {len(candidates)} --out {out / 'check'}")  # fmt: skip
     write_summary(out, summary)
 
 

@@ -34,6 +34,14 @@ measured angles, smoothed rates, voltages; :func:`heli_uq.output.network.network
    :func:`~heli_uq.discovery.network_equation.equation_model` puts the selected effects in
    place of the network for a refit.
 
+Naming is not a model comparison: a draw's regression can keep an effect that a fit to the
+record does not need (a spring beside a hidden friction, on a 24 s record).
+:func:`check_candidates` lists the named effects and their ties as the candidates of a
+held-out check, :func:`heli_uq.discovery.discover` restricted to them (``candidates``,
+``max_effects`` = their number): it fits them alone and in pairs on part of the training
+window, keeps only what beats the smaller model on held-out blocks of the rest, and refits
+that with NUTS.
+
 The implied magnitudes are local: a column is a derivative at the probe values, so a dead
 band's or a spring's rest angle is not estimated here, only named; the refit estimates it.
 
@@ -57,7 +65,7 @@ from heli_uq.model.terms.base import AbstractInputMap, residual_projector
 from heli_uq.probability.priors import fixed_values
 
 __all__ = ["name_network_effects", "effect_columns", "network_effects_of", "input_dependence",
-           "state_networks", "effects_sentence", "EXPLAINED_MIN"]  # fmt: skip
+           "state_networks", "effects_sentence", "check_candidates", "EXPLAINED_MIN"]  # fmt: skip
 
 #: Grid inputs of a network of the states (coords of ``nn_point_<axis>``).
 STATE_INPUTS = ("theta", "psi", "omega_theta", "omega_psi", "u_theta", "u_psi")
@@ -312,3 +320,17 @@ def effects_sentence(axis: str, found: dict) -> str:
     best = max(found["explained"], key=found["explained"].get) if found["explained"] else None
     best = f" (the best, {best}, explains {found['explained'][best]:.0%} of it)" if best else ""
     return f"the network of the states on {axis} is no effect of the table{best}{depends}"
+
+
+def check_candidates(found: dict) -> list[str]:
+    """The effects ``"axis:kind"`` named on each axis, each followed by the effects tied to
+    it (``found``: ``{axis: network_effects_of(...)}``): the candidates of the held-out
+    check by :func:`heli_uq.discovery.discover` (module docstring).  Empty if nothing was
+    named."""
+    out = []
+    for axis, named in found.items():
+        for kind in named["selected"]:
+            for k in (kind, *named.get("ties", {}).get(kind, ())):
+                if f"{axis}:{k}" not in out:
+                    out.append(f"{axis}:{k}")
+    return out

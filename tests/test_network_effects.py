@@ -211,7 +211,13 @@ def test_cli_sample_names_what_its_network_of_the_states_learned(tmp_path, capsy
     idata, model = load_posterior(out / "posterior.nc")
     again = json.loads(json.dumps(network_effects_of(idata, model, "yaw")))
     assert set(stored) == {"yaw"} and stored["yaw"] == again
-    assert effects_sentence("yaw", again) in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert effects_sentence("yaw", again) in printed
+    # the held-out check's command is printed exactly when something is named
+    candidates = check_candidates(stored)
+    assert ("check them on held-out blocks" in printed) == bool(candidates)
+    if candidates:
+        assert f"--candidates {','.join(candidates)} --max-effects {len(candidates)}" in printed
 
 
 @pytest.mark.long

@@ -10,6 +10,7 @@ import pytest
 from heli_uq.discovery.network_effects import (
     EXPLAINED_MIN,
     check_candidates,
+    check_line,
     effect_columns,
     effects_sentence,
     input_dependence,
@@ -166,7 +167,13 @@ def test_a_torque_the_table_does_not_hold_is_not_named(yaw_columns):
     assert alone["ties"] == {"torque_offset": ["deadband"]} and "deadband" not in alone["inclusion"]
     # the held-out check tries the tied effect too; nothing named, nothing to check
     assert check_candidates({"yaw": alone}) == ["yaw:torque_offset", "yaw:deadband"]
-    assert check_candidates({"yaw": out}) == []
+    assert check_candidates({"yaw": out}) == [] and check_line("rec.csv", {"yaw": out}, (0, 91), "o") is None
+    assert check_line("rec.csv", {"yaw": alone}, (0.0, 91.0), "o/check") == (
+        "check them on held-out blocks: heli-uq discover rec.csv --window 0:91 --candidates "
+        "yaw:torque_offset,yaw:deadband --max-effects 2 --out o/check")
+    # discover refuses windows under 20 s: the line says so instead of a command that fails
+    assert check_line("rec.csv", {"yaw": alone}, (2.0, 16.4), "o").endswith(
+        "needs a training window of at least 20 s; this one is 14.4 s")
 
 
 def test_input_dependence_finds_the_input_a_torque_is_a_function_of():
@@ -213,11 +220,9 @@ def test_cli_sample_names_what_its_network_of_the_states_learned(tmp_path, capsy
     assert set(stored) == {"yaw"} and stored["yaw"] == again
     printed = capsys.readouterr().out
     assert effects_sentence("yaw", again) in printed
-    # the held-out check's command is printed exactly when something is named
-    candidates = check_candidates(stored)
-    assert ("check them on held-out blocks" in printed) == bool(candidates)
-    if candidates:
-        assert f"--candidates {','.join(candidates)} --max-effects {len(candidates)}" in printed
+    # the held-out check's line (6 s: why there is none), printed exactly when something is named
+    line = check_line(str(tmp_path / "rec.csv"), stored, (0.0, 6.0), out / "check")
+    assert (line is None and "held-out blocks" not in printed) or line in printed
 
 
 @pytest.mark.long

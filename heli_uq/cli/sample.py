@@ -88,9 +88,10 @@ def _name_state_networks(args, model, idata, out, summary: dict, train) -> None:
     (:func:`heli_uq.discovery.network_effects.network_effects_of`), printed and stored in
     summary.json as ``network_effects``, and the ``discover`` command that checks the named
     effects on held-out blocks of the training window."""
-    from heli_uq.data import parse_window
+    import numpy as np
+
     from heli_uq.discovery.network_effects import (
-        check_candidates,
+        check_line,
         effects_sentence,
         network_effects_of,
         state_networks,
@@ -105,12 +106,12 @@ def _name_state_networks(args, model, idata, out, summary: dict, train) -> None:
                                   for axis in state_networks(model)}  # fmt: skip
     for axis, found in summary["network_effects"].items():
         print(effects_sentence(axis, found))
-    candidates = check_candidates(summary["network_effects"])
-    if candidates:
-        window = train or (parse_window(args.window) if args.window else None)
-        where = f" --window {window[0]:g}:{window[1]:g}" if window else ""
-        print(f"check them on held-out blocks: heli-uq discover {args.data}{where} --candidates "
-              f"{','.join(candidates)} --max-effects {len(candidates)} --out {out / 'check'}")  # fmt: skip
+    times = np.asarray(idata.constant_data["time"])  # the simulated span; train first
+    t = times[np.asarray(idata.constant_data["train_mask"])]
+    window = train or (float(t[0]), float(t[-1] + times[1] - times[0]))
+    line = check_line(args.data, summary["network_effects"], window, out / "check")
+    if line:
+        print(line)
     write_summary(out, summary)
 
 

@@ -65,7 +65,8 @@ from heli_uq.model.terms.base import AbstractInputMap, residual_projector
 from heli_uq.probability.priors import fixed_values
 
 __all__ = ["name_network_effects", "effect_columns", "network_effects_of", "input_dependence",
-           "state_networks", "effects_sentence", "check_candidates", "EXPLAINED_MIN"]  # fmt: skip
+           "state_networks", "effects_sentence", "check_candidates", "check_line",
+           "EXPLAINED_MIN"]  # fmt: skip
 
 #: Grid inputs of a network of the states (coords of ``nn_point_<axis>``).
 STATE_INPUTS = ("theta", "psi", "omega_theta", "omega_psi", "u_theta", "u_psi")
@@ -334,3 +335,22 @@ def check_candidates(found: dict) -> list[str]:
                 if f"{axis}:{k}" not in out:
                     out.append(f"{axis}:{k}")
     return out
+
+
+def check_line(data: str, found: dict, window, out) -> str | None:
+    """The line ``heli-uq sample`` prints after naming: the ``heli-uq discover`` command of
+    the held-out check of the effects named in ``found`` (``{axis: network_effects_of(...)}``)
+    on the training ``window`` ``(a, b)`` [s] of the record ``data``, writing to ``out``; or,
+    for a window shorter than discovery's :data:`~heli_uq.discovery.workflow.MIN_SECONDS`,
+    why there is none.  ``None`` if nothing was named."""
+    from heli_uq.discovery.workflow import MIN_SECONDS
+
+    candidates = check_candidates(found)
+    if not candidates:
+        return None
+    a, b = window
+    if b - a < MIN_SECONDS:
+        return (f"a check of them on held-out blocks (heli-uq discover) needs a training window of at "
+                f"least {MIN_SECONDS:g} s; this one is {b - a:g} s")  # fmt: skip
+    return (f"check them on held-out blocks: heli-uq discover {data} --window {a:g}:{b:g} --candidates "
+            f"{','.join(candidates)} --max-effects {len(candidates)} --out {out}")  # fmt: skip

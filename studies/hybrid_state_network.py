@@ -20,7 +20,8 @@ the physics (every inertia free unless ``--fix-mass``):
   the selected effects), and, if any, the model with those effects in place of the
   network refitted by NUTS (test yaw RMSE and coverage, the hidden values' 95 % intervals);
 * with ``--check-named`` (implies ``--name-effects``): before the refit the named effects
-  are checked on held-out blocks of the training window by ``discover`` restricted to them
+  (or, if none is named, the credible ones that explain too little to be named) are
+  checked on held-out blocks of the training window by ``discover`` restricted to them
   (:func:`heli_uq.discovery.network_effects.check_candidates`; needs a training window of
   at least 20 s, e.g. ``--seconds 40``), and only what it adds is refitted.
 
@@ -161,7 +162,7 @@ def _name_and_refit(args, record, train, test, priors, idata, run_dir, hidden, t
     refit in the network's place: its test yaw fit and the hidden values' 95 % intervals."""
     import numpy as np
 
-    from heli_uq.discovery.network_effects import network_effects_of
+    from heli_uq.discovery.network_effects import check_candidates, network_effects_of
     from heli_uq.discovery.network_equation import equation_model
     from heli_uq.output import sample_posterior
     from heli_uq.output.inference_data import load_posterior
@@ -171,7 +172,7 @@ def _name_and_refit(args, record, train, test, priors, idata, run_dir, hidden, t
     named = network_effects_of(idata, model, "yaw")
     print(f"named: {named['selected']} (inclusion {named['inclusion']})", flush=True)
     kept = named["selected"]
-    if kept and args.check_named:
+    if args.check_named and check_candidates({"yaw": named}):  # named, or credible and too small
         named["check"] = _check(args, record, train, named, run_dir)
         kept = [a["effect"] for a in named["check"]["added"]]
         print(f"kept by the held-out check: {kept}", flush=True)

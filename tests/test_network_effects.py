@@ -139,8 +139,9 @@ def test_draws_that_disagree_name_nothing(yaw_columns):
     stack = np.column_stack([c for _, c in cols.values()])
     draws = (rng.standard_normal((120, stack.shape[1])) * 0.01 / np.abs(stack).max(0)) @ stack.T
     out = name_network_effects(draws, cols, _basis(points), supports=_supports())
-    assert out["selected"] == []
+    assert out["selected"] == [] and out["credible"] == []
     assert out["not_credible"]  # the path kept something in most draws; it was not credible
+    assert check_candidates({"yaw": out}) == [] and check_line("rec.csv", {"yaw": out}, (0, 91), "o") is None
 
 
 def test_named_effects_replace_the_network():
@@ -152,9 +153,9 @@ def test_named_effects_replace_the_network():
 
 
 def test_a_torque_the_table_does_not_hold_is_not_named(yaw_columns):
-    """A credible offset under a larger torque of the pitch rate (no effect of the table
-    on yaw): the offset alone explains too little of the torque to name; without the
-    pitch-rate torque it is named."""
+    """An offset under a larger torque of the pitch rate (no effect of the table on yaw):
+    what is credible (part of the pitch-rate torque leaks into an effect's column) explains
+    too little of the torque to name; without the pitch-rate torque the offset is named."""
     points, cols = yaw_columns
     other = 0.02 * np.tanh(points["omega_theta"] / 0.1)
     offset = _draws(points, cols, {"torque_offset": 0.005})
@@ -165,9 +166,10 @@ def test_a_torque_the_table_does_not_hold_is_not_named(yaw_columns):
     assert alone["selected"] == ["torque_offset"] and not alone["unexplained"]
     # on positive yaw voltages a dead band is a constant torque: the offset's column
     assert alone["ties"] == {"torque_offset": ["deadband"]} and "deadband" not in alone["inclusion"]
-    # the held-out check tries the tied effect too; nothing named, nothing to check
+    # the held-out check tries the tied effect too, and judges a credible effect that is
+    # too small a part of the torque to name
     assert check_candidates({"yaw": alone}) == ["yaw:torque_offset", "yaw:deadband"]
-    assert check_candidates({"yaw": out}) == [] and check_line("rec.csv", {"yaw": out}, (0, 91), "o") is None
+    assert out["credible"] and check_candidates({"yaw": out}) == [f"yaw:{k}" for k in out["credible"]]
     assert check_line("rec.csv", {"yaw": alone}, (0.0, 91.0), "o/check") == (
         "check them on held-out blocks: heli-uq discover rec.csv --window 0:91 --candidates "
         "yaw:torque_offset,yaw:deadband --max-effects 2 --out o/check")
@@ -194,6 +196,11 @@ def test_the_sentence_says_what_was_named_or_what_the_torque_depends_on():
     assert effects_sentence("yaw", nothing) == (
         "the network of the states on yaw is no effect of the table (the best, torsional_spring, explains 2% "
         "of it); its torque depends most on omega_theta (51% of its variance by that input alone)")
+    weak = {**nothing, "credible": ["coulomb_friction"], "r2": 0.186}
+    assert effects_sentence("yaw", weak) == (
+        "the network of the states on yaw is no effect of the table (the best, torsional_spring, explains 2% "
+        "of it); credible but too small a part of it to name: coulomb_friction (together 19%); its torque "
+        "depends most on omega_theta (51% of its variance by that input alone)")
 
 
 @pytest.mark.long

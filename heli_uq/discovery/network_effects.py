@@ -30,14 +30,15 @@ measured angles, smoothed rates, voltages; :func:`heli_uq.output.network.network
    with coefficients of both signs; the interval is what tells it from an effect.
    Together the credible effects must explain :data:`EXPLAINED_MIN` of the posterior-mean
    torque, else nothing is named (``unexplained``): the network learned something the
-   table does not hold.
+   table does not hold, or more than the effect (the credible ones are still candidates
+   of the held-out check below).
    :func:`~heli_uq.discovery.network_equation.equation_model` puts the selected effects in
    place of the network for a refit.
 
 Naming is not a model comparison: a draw's regression can keep an effect that a fit to the
 record does not need (a spring beside a hidden friction, on a 24 s record).
-:func:`check_candidates` lists the named effects and their ties as the candidates of a
-held-out check, :func:`heli_uq.discovery.discover` restricted to them (``candidates``,
+:func:`check_candidates` lists the named effects and their ties (where nothing is named, the
+credible effects that explain too little) as the candidates of a held-out check, :func:`heli_uq.discovery.discover` restricted to them (``candidates``,
 ``max_effects`` = their number): it fits them alone and in pairs on part of the training
 window, keeps only what beats the smaller model on held-out blocks of the rest, and refits
 that with NUTS.
@@ -168,9 +169,11 @@ def name_network_effects(torque, columns: dict, basis, *, supports=None, include
         ``effects`` (the kinds regressed on), ``ties`` (kind -> the later kinds whose
         column is its own, not regressed on), ``inclusion`` (kind -> probability),
         ``explained`` (kind -> fraction of the posterior-mean torque its column alone
-        explains), ``selected`` (kinds, most included first), ``magnitudes`` (selected kind ->
-        ``{parameter, mean, ci95}`` of its magnitude when the selected columns are fitted
-        to each draw by least squares [its unit]), ``not_credible`` (kinds included often
+        explains), ``selected`` (kinds, most included first), ``credible`` (the kinds included
+        often enough whose magnitude's interval excludes 0 on its support's side: the
+        selected ones, or those that explain too little to be named), ``magnitudes``
+        (credible kind -> ``{parameter, mean, ci95}`` of its magnitude when the credible
+        columns are fitted to each draw by least squares [its unit]), ``not_credible`` (kinds included often
         enough whose magnitude's 95 % interval in that joint fit holds 0, or lies on the
         wrong side of it: not selected), ``r2`` (of the selected columns' fit to the
         posterior-mean torque; of the credible ones when none is selected), ``unexplained``
@@ -210,8 +213,9 @@ def name_network_effects(torque, columns: dict, basis, *, supports=None, include
     r2 = float(_r2(x[:, [kinds.index(c) for c in credible]], target)) if credible else float("nan")
     selected = credible if credible and r2 >= EXPLAINED_MIN else []
     return {"effects": kinds, "ties": ties, "inclusion": inclusion, "explained": explained,
-            "selected": selected, "not_credible": [c for c in candidates if c not in credible],
-            "magnitudes": _magnitudes(x, y, rms, kinds, selected, columns), "r2": r2,
+            "selected": selected, "credible": credible,
+            "not_credible": [c for c in candidates if c not in credible],
+            "magnitudes": _magnitudes(x, y, rms, kinds, credible, columns), "r2": r2,
             "unexplained": bool(credible) and not selected, "draws": int(len(y))}
 
 
@@ -320,17 +324,21 @@ def effects_sentence(axis: str, found: dict) -> str:
                 f"{found['r2']:.0%} of its torque{depends}")  # fmt: skip
     best = max(found["explained"], key=found["explained"].get) if found["explained"] else None
     best = f" (the best, {best}, explains {found['explained'][best]:.0%} of it)" if best else ""
-    return f"the network of the states on {axis} is no effect of the table{best}{depends}"
+    weak = (f"; credible but too small a part of it to name: {', '.join(found['credible'])} (together "
+            f"{found['r2']:.0%})") if found.get("credible") else ""  # fmt: skip
+    return f"the network of the states on {axis} is no effect of the table{best}{weak}{depends}"
 
 
 def check_candidates(found: dict) -> list[str]:
     """The effects ``"axis:kind"`` named on each axis, each followed by the effects tied to
     it (``found``: ``{axis: network_effects_of(...)}``): the candidates of the held-out
-    check by :func:`heli_uq.discovery.discover` (module docstring).  Empty if nothing was
-    named."""
+    check by :func:`heli_uq.discovery.discover` (module docstring).  On an axis where
+    nothing is named, its credible effects that explain too little to be named
+    (``unexplained``) are the candidates: the check, not :data:`EXPLAINED_MIN`, then judges
+    them.  Empty if no effect is credible."""
     out = []
     for axis, named in found.items():
-        for kind in named["selected"]:
+        for kind in named["selected"] or named.get("credible", []):
             for k in (kind, *named.get("ties", {}).get(kind, ())):
                 if f"{axis}:{k}" not in out:
                     out.append(f"{axis}:{k}")

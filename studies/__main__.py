@@ -118,7 +118,7 @@ STUDIES = (
     Study("hybrid_state_network", "does projecting the linear physics out of FNN(u, x, v) help its posterior, "
           "and which effect of the table did it learn?",
           (_script("hybrid_state_network", "--seconds", "6", "--chains", "1", "--warmup", "10", "--draws", "10",
-                   "--name-effects",
+                   "--check-named",
                    "--runs", "{root}/runs/hybrid_state_network",
                    "--out", "{root}/results/hybrid_state_network.jsonl"),),
           (_script("hybrid_state_network"),), needs_record=False),

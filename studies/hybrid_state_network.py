@@ -143,14 +143,19 @@ def _name_stored(args, argv) -> int:
 
 def _check(args, record, train, named, run_dir) -> dict:
     """``discover`` on the training window, restricted to the named effects and their ties:
-    what it adds, its candidates' held-out scores and its decision."""
+    what it adds, its candidates' held-out scores and its decision (or why it cannot run:
+    the named effects are then refitted unchecked)."""
     from heli_uq.discovery import discover
     from heli_uq.discovery.network_effects import check_candidates
+    from heli_uq.errors import ParameterError
 
     candidates = check_candidates({"yaw": named})
     t0 = time.perf_counter()
-    result = discover(record, run_dir / "check", window=train, candidates=candidates,
-                      max_effects=len(candidates), seed=args.seed, budget="quick")  # fmt: skip
+    try:
+        result = discover(record, run_dir / "check", window=train, candidates=candidates,
+                          max_effects=len(candidates), seed=args.seed, budget="quick")  # fmt: skip
+    except ParameterError as exc:
+        return {"candidates": candidates, "error": str(exc)}
     return {"candidates": candidates, "added": result["added"], "decision": result["decision"],
             "scores": [{k: c.get(k) for k in ("effect", "axis", "score", "score_se")}
                        for c in result["candidates"]],
@@ -174,8 +179,11 @@ def _name_and_refit(args, record, train, test, priors, idata, run_dir, hidden, t
     kept = named["selected"]
     if args.check_named and check_candidates({"yaw": named}):  # named, or credible and too small
         named["check"] = _check(args, record, train, named, run_dir)
-        kept = [a["effect"] for a in named["check"]["added"]]
-        print(f"kept by the held-out check: {kept}", flush=True)
+        if "error" in named["check"]:  # e.g. a training window too short for discover
+            print(f"no held-out check: {named['check']['error']}", flush=True)
+        else:
+            kept = [a["effect"] for a in named["check"]["added"]]
+            print(f"kept by the held-out check: {kept}", flush=True)
     if not kept:
         return named
     refit = equation_model(model, "yaw", kept)

@@ -38,10 +38,11 @@ measured angles, smoothed rates, voltages; :func:`heli_uq.output.network.network
 Naming is not a model comparison: a draw's regression can keep an effect that a fit to the
 record does not need (a spring beside a hidden friction, on a 24 s record).
 :func:`check_candidates` lists the named effects and their ties (where nothing is named, the
-credible effects that explain too little) as the candidates of a held-out check, :func:`heli_uq.discovery.discover` restricted to them (``candidates``,
-``max_effects`` = their number): it fits them alone and in pairs on part of the training
-window, keeps only what beats the smaller model on held-out blocks of the rest, and refits
-that with NUTS.
+credible effects that explain too little) as the candidates of a held-out check,
+:func:`heli_uq.discovery.discover` restricted to them (``candidates``, ``max_effects`` = their
+number): it fits them alone and in pairs on part of the training window, keeps only what
+beats the smaller model on held-out blocks of the rest, and refits that with NUTS
+(:func:`check_line`: the command ``heli-uq sample`` prints).
 
 The implied magnitudes are local: a column is a derivative at the probe values, so a dead
 band's or a spring's rest angle is not estimated here, only named; the refit estimates it.

@@ -351,7 +351,7 @@ def check_line(data: str, found: dict, window, out) -> str | None:
     the held-out check of the effects named in ``found`` (``{axis: network_effects_of(...)}``)
     on the training ``window`` ``(a, b)`` [s] of the record ``data``, writing to ``out``; or,
     for a window shorter than discovery's :data:`~heli_uq.discovery.workflow.MIN_SECONDS`,
-    why there is none.  ``None`` if nothing was named."""
+    why there is none.  ``None`` if :func:`check_candidates` finds no candidate."""
     from heli_uq.discovery.workflow import MIN_SECONDS
 
     candidates = check_candidates(found)

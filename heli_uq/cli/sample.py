@@ -78,18 +78,17 @@ def cmd_sample(args) -> int:
         print("effect parameters (mean, 95 % interval): " + "; ".join(
             f"{n} = {v['mean']:.4g} [{v['ci95'][0]:.4g}, {v['ci95'][1]:.4g}] {v['unit']}"
             for n, v in effects.items()))  # fmt: skip
-    _name_state_networks(args, model, idata, out, summary, train)
+    _name_state_networks(args, model, idata, out, summary,
+                         train or (float(record.t[0]), float(record.t[0] + record.duration)))
     print(f"wrote {out / 'posterior.nc'}, summary.csv, summary.json, bands.png")
     return report_health(summary, args.strict)
 
 
-def _name_state_networks(args, model, idata, out, summary: dict, train) -> None:
+def _name_state_networks(args, model, idata, out, summary: dict, window) -> None:
     """For a network of the states: which effects of the table it learned
     (:func:`heli_uq.discovery.network_effects.network_effects_of`), printed and stored in
     summary.json as ``network_effects``, and the ``discover`` command that checks the named
-    effects on held-out blocks of the training window."""
-    import numpy as np
-
+    effects on held-out blocks of the training ``window`` ``(a, b)`` [s]."""
     from heli_uq.discovery.network_effects import (
         check_line,
         effects_sentence,
@@ -106,9 +105,6 @@ def _name_state_networks(args, model, idata, out, summary: dict, train) -> None:
                                   for axis in state_networks(model)}  # fmt: skip
     for axis, found in summary["network_effects"].items():
         print(effects_sentence(axis, found))
-    times = np.asarray(idata.constant_data["time"])  # the simulated span; train first
-    t = times[np.asarray(idata.constant_data["train_mask"])]
-    window = train or (float(t[0]), float(t[-1] + times[1] - times[0]))
     line = check_line(args.data, summary["network_effects"], window, out / "check")
     if line:
         print(line)

@@ -103,6 +103,11 @@ STUDIES = (
           (_script("stiction_rig", "--train", "0:6", "--test", "6:9", "--out", "{root}/results/stiction_rig.jsonl",
                    "--figure", "{root}/figures/stiction_rig.png"),),
           (_script("stiction_rig"),)),
+    Study("thrust_tilt_rig", "does the rig's yaw torque fall off with pitch as cos θ (the geometry)? A profile of the tilt "
+          "on the rig split (MAP, held-out window)",
+          (_script("thrust_tilt_rig", "--train", "0:6", "--test", "6:9", "--grid", "0,1",
+                   "--out", "{root}/results/thrust_tilt_rig.jsonl", "--figure", "{root}/figures/thrust_tilt_rig.png"),),
+          (_script("thrust_tilt_rig"),)),
     Study("bench_hybrid", "log-density gradient of FNN(u)/FNN(u,x,v) hybrids vs the mechanistic model (speed, challenge 2d)",
           (_script("bench_hybrid", "--window", "0:10", "--repeats", "3", "--out", "{root}/results/bench_hybrid.jsonl"),),
           (_script("bench_hybrid"),)),

@@ -44,6 +44,10 @@ POSTERIOR_ROWS = (
      "chains, ω_ψ(0) = 0; 23 % of draws at tree depth 6: UNCONVERGED; wall: the resumed draws only, the "
      "whole run 105 min with another job on the cores)",
      "nuts_iid_friction_stiction_offset_yaw_train0-91_test91-131_rest.summary.json"),
+    ("+ yaw coulomb_friction + yaw torque_offset, yaw torques × cos θ (`thrust_tilt`, a = 1 fixed: the "
+     "geometry), NUTS on 0–91 s, test 91–131 s (iid, 4 chains, ω_ψ(0) = 0; 13 divergences: UNCONVERGED; "
+     "another job on the cores)",
+     "nuts_iid_friction_offset_tilt1_yaw_train0-91_test91-131_rest.summary.json"),
 )
 
 

@@ -35,6 +35,8 @@ def _effects_help() -> str:
         lines.append(f"  {name:18s} {pars}")
     lines.append("  stiction           breakaway friction above the sliding level: F_s [N m], fading "
                  "over omega_b (option, 0.02 rad/s); with coulomb_friction the Stribeck law")
+    lines.append("  thrust_tilt        yaw only: the yaw torques K_psi_theta u_theta - K_psi_psi u_psi "
+                 "times (1 - a (1 - cos theta)); a [1] in [0, 2], 1 = the geometry's cos theta")
     lines.append("  neural_torque      hybrid model: a tanh network torque of the voltages (weights "
                  "nn_W_*, nn_b_*, nn_w_* [N m]); options inputs (u | u,x,v) and hidden in a "
                  "model file")

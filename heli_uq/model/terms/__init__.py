@@ -22,6 +22,7 @@ from heli_uq.model.terms.rigid_body import AbstractMechanics as AbstractMechanic
 from heli_uq.model.terms.rigid_body import ClosedFormMechanics as ClosedFormMechanics
 from heli_uq.model.terms.rigid_body import LagrangianMechanics as LagrangianMechanics
 from heli_uq.model.terms.stiction import Stiction as Stiction
+from heli_uq.model.terms.thrust_tilt import ThrustTilt as ThrustTilt
 from heli_uq.model.terms.torque_offset import TorqueOffset as TorqueOffset
 from heli_uq.model.terms.torsional_spring import TorsionalSpring as TorsionalSpring
 
@@ -30,16 +31,17 @@ EFFECTS = {cls.kind: cls for cls in (DeadBand, CoulombFriction, QuadraticDrag, T
                                      QuadraticThrust, TorqueOffset)}  # fmt: skip
 #: Every term a model file or ``--effects`` may name: the vocabulary plus the stiction
 #: variant of friction (breakaway above the sliding level; outside the effects table), the
+#: yaw torques' ``cos theta`` tilt with pitch (a correction of the paper's torque), the
 #: neural torque of the hybrid model, the feature torque of an equation recovered from it
 #: and the Gaussian-process torque of the voltages (model discrepancy).  Only the
 #: vocabulary's effects are discovery candidates.
-TERMS = {**EFFECTS, Stiction.kind: Stiction, NeuralTorque.kind: NeuralTorque,
+TERMS = {**EFFECTS, Stiction.kind: Stiction, ThrustTilt.kind: ThrustTilt, NeuralTorque.kind: NeuralTorque,
          FeatureTorque.kind: FeatureTorque, GPTorque.kind: GPTorque}
 
 __all__ = [
     "AbstractEffect", "AbstractInputMap", "AbstractTerm", "AbstractTorque", "AbstractMechanics",
     "ClosedFormMechanics", "LagrangianMechanics", "LinearTorque", "CoulombFriction", "DeadBand",
     "QuadraticDrag", "QuadraticThrust", "TorqueOffset", "TorsionalSpring", "NeuralTorque",
-    "FeatureTorque", "GPTorque", "Stiction",
+    "FeatureTorque", "GPTorque", "Stiction", "ThrustTilt",
     "EFFECTS", "TERMS",
 ]  # fmt: skip

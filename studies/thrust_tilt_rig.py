@@ -11,7 +11,7 @@ of the README), and once with the tilt free, started from the grid's fit at ``--
 Writes one JSON line per fit to ``results/thrust_tilt_rig.jsonl`` (tilt, ``-log p``, yaw
 and pitch RMSE of the MAP simulation on both windows, the MAP) and
 ``figures/thrust_tilt_rig.png`` (the profile, and the yaw of three fits against the record).
-Usage: ``python studies/thrust_tilt_rig.py`` (about 8 min on 2 cores).
+Usage: ``python studies/thrust_tilt_rig.py`` (17 min on 2 cores shared with a NUTS run).
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ from heli_uq.model.prior import Prior
 from heli_uq.model.terms.base import AbstractTorque
 from heli_uq.model.terms.rigid_body import DEFAULT_LOG_SIGMA
 
-__all__ = ["LinearTorque", "LINEAR_TORQUE_PARAMETERS"]
+__all__ = ["LinearTorque", "LINEAR_TORQUE_PARAMETERS", "motor_torques"]
 
 
 def _gain(name, unit, nominal, fitted, axis, text, source=None) -> Parameter:
@@ -35,6 +35,14 @@ LINEAR_TORQUE_PARAMETERS: tuple[Parameter, ...] = (
 )  # fmt: skip
 
 
+def motor_torques(p, u):
+    """The motors' torques ``K u`` [N m], a pair ``(T_theta, T_psi)`` of scalars, from the
+    gains in ``p`` and the voltages ``u = (u_theta, u_psi)`` [V] (other terms that modify
+    them, e.g. :mod:`~heli_uq.model.terms.thrust_tilt`, read them here)."""
+    return (p["K_theta_theta"] * u[0] - p["K_theta_psi"] * u[1],
+            p["K_psi_theta"] * u[0] - p["K_psi_psi"] * u[1])  # fmt: skip
+
+
 class LinearTorque(AbstractTorque):
     """``F = K u - D v`` (paper Sec. 2.5), returning ``(T_theta, T_psi)`` [N m]."""
 
@@ -45,6 +53,5 @@ class LinearTorque(AbstractTorque):
         return LINEAR_TORQUE_PARAMETERS
 
     def __call__(self, p, x, v, u):
-        t_theta = p["K_theta_theta"] * u[0] - p["K_theta_psi"] * u[1] - p["D_theta"] * v[0]
-        t_psi = p["K_psi_theta"] * u[0] - p["K_psi_psi"] * u[1] - p["D_psi"] * v[1]
-        return t_theta, t_psi
+        t_theta, t_psi = motor_torques(p, u)
+        return t_theta - p["D_theta"] * v[0], t_psi - p["D_psi"] * v[1]

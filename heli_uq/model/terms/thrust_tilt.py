@@ -23,7 +23,8 @@ The term blends the two laws with the tilt ``a`` (dimensionless, 0 = the paper's
     T_psi = (K_psi_theta u_theta - K_psi_psi u_psi) (1 - a (1 - cos theta))
 
 and adds ``-a (1 - cos theta) (K_psi_theta u_theta - K_psi_psi u_psi)`` [N m] to the
-linear torque's.  It reads the linear torque's yaw gains, so a model needs the linear
+linear torque's.  It reads the yaw gains through
+:func:`~heli_uq.model.terms.linear_torque.motor_torques`, so a model needs the linear
 torque.  Only the yaw axis has such a factor in this geometry; on pitch the term is
 refused.  The term is outside the discovery vocabulary
 (:data:`heli_uq.model.terms.EFFECTS`), like ``stiction``.
@@ -39,6 +40,7 @@ import jax.numpy as jnp
 from heli_uq.model.parameter import Parameter
 from heli_uq.model.prior import Prior
 from heli_uq.model.terms.base import AbstractEffect, AbstractTorque, on_axis
+from heli_uq.model.terms.linear_torque import motor_torques
 
 __all__ = ["ThrustTilt", "TILT_MAX"]
 
@@ -65,5 +67,5 @@ class ThrustTilt(AbstractEffect, AbstractTorque):
                           "tilt of the yaw torques with pitch (1: cos theta)", 1.0),)  # fmt: skip
 
     def __call__(self, p, x, v, u):
-        motors = p["K_psi_theta"] * u[0] - p["K_psi_psi"] * u[1]
-        return on_axis(self.axis, -p[self.name("a")] * (1.0 - jnp.cos(x[0])) * motors)
+        yaw_motors = motor_torques(p, u)[1]
+        return on_axis(self.axis, -p[self.name("a")] * (1.0 - jnp.cos(x[0])) * yaw_motors)

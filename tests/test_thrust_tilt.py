@@ -118,3 +118,6 @@ def test_description_round_trip_support_and_not_a_discovery_candidate():
     assert "thrust_tilt" in TERMS and "thrust_tilt" not in EFFECTS
     with pytest.raises(ParameterError, match="yaw torques only"):
         build_model(["pitch:thrust_tilt"])
+    assert again.effects[-1].reads() == ("K_psi_theta", "K_psi_psi")
+    with pytest.raises(ParameterError, match="reads K_psi_theta, K_psi_psi, which no term"):
+        build_model(["yaw:thrust_tilt", "yaw:torque_offset"], linear_torque=False)

@@ -65,6 +65,11 @@ class HeliModel(eqx.Module):
                     raise ParameterError(f"model: {term.label} and {seen[par.name]} both declare "
                                      f"parameter {par.name!r}; use each effect once per axis")
                 seen[par.name] = term.label
+        for term in self.terms:
+            missing = [name for name in term.reads() if name not in seen]
+            if missing:
+                raise ParameterError(f"model: {term.label} reads {', '.join(missing)}, which no term "
+                                     "of the model declares (is the linear torque left out?)")
 
     # ----------------------------------------------------------- parameters
     @property

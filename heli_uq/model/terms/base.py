@@ -99,6 +99,11 @@ class AbstractTerm(eqx.Module):
         """JSON description, read back by :func:`heli_uq.model.model_from_description`."""
         return {"term": self.kind}
 
+    def reads(self) -> tuple[str, ...]:
+        """Names of other terms' parameters this term reads from ``p`` (none by default);
+        :class:`~heli_uq.model.HeliModel` refuses a model where no term declares one."""
+        return ()
+
     def derived(self, p) -> dict:
         """Values computed from the parameters once per solve, added to ``p`` under names
         of this term (none by default)."""

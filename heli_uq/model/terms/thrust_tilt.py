@@ -40,7 +40,7 @@ import jax.numpy as jnp
 from heli_uq.model.parameter import Parameter
 from heli_uq.model.prior import Prior
 from heli_uq.model.terms.base import AbstractEffect, AbstractTorque, on_axis
-from heli_uq.model.terms.linear_torque import motor_torques
+from heli_uq.model.terms.linear_torque import LINEAR_TORQUE_PARAMETERS, motor_torques
 
 __all__ = ["ThrustTilt", "TILT_MAX"]
 
@@ -65,6 +65,9 @@ class ThrustTilt(AbstractEffect, AbstractTorque):
         support = ("bounded", 0.0, TILT_MAX)
         return (Parameter("a", "1", 0.0, Prior("uniform", 0.0, TILT_MAX), support, False, None,
                           "tilt of the yaw torques with pitch (1: cos theta)", 1.0),)  # fmt: skip
+
+    def reads(self):
+        return tuple(par.name for par in LINEAR_TORQUE_PARAMETERS if par.axis == "yaw" and par.input)
 
     def __call__(self, p, x, v, u):
         yaw_motors = motor_torques(p, u)[1]

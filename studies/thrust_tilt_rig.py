@@ -32,21 +32,17 @@ GRID = "0,0.25,0.5,0.75,1,1.25,1.5"
 
 
 def _fit(record, train, test, model, tilt, guess):
-    """MAP with the tilt fixed at ``tilt`` (``None``: free), and its simulation (N, 4)."""
+    """The MAP start with the tilt fixed at ``tilt`` (``None``: free)."""
     from heli_uq.inference import prepare_start
     from heli_uq.model.prior import Prior
     from heli_uq.probability import make_problem
     from heli_uq.probability.priors import PriorSet
-    from heli_uq.simulation import simulate
 
     priors = PriorSet.default(model)
     if tilt is not None:
         priors = priors.updated(model, {"a_yaw": Prior("fixed", tilt)})
     problem = make_problem(record, train, test, model=model, priors=priors, error="iid")
-    start = prepare_start(problem, n_starts=1, guesses=(guess,) if guess else ())
-    params, x0 = start.map_point()
-    ys = np.asarray(simulate(params, x0, record.u, record.dt, model=model, substeps=start.problem.substeps))
-    return start, params, x0, ys
+    return prepare_start(problem, n_starts=1, guesses=(guess,) if guess else ())
 
 
 def _rmse(ys, record, window) -> dict:
@@ -142,15 +138,17 @@ def main(argv=None) -> int:
         if tilt is None:
             guess = starts[args.free_start]
         t0 = time.perf_counter()
-        start, params, x0, ys = _fit(record, train, test, model, tilt, guess)
+        start = _fit(record, train, test, model, tilt, guess)
+        params, x0 = start.map_point()
         guess = dict(params, **dict(zip(X0_NAMES, map(float, x0))))
         if tilt is not None:
             starts[tilt] = guess
         line = {"effects": list(EFFECTS), "a": float(params["a_yaw"]), "tilt_fixed": tilt is not None,
                 "map_value": float(start.map_value), "map_decrement": float(start.map_decrement),
-                "substeps": int(start.problem.substeps), "train": _rmse(ys, record, train),
-                "test": _rmse(ys, record, test), "map": guess,
-                "seconds": time.perf_counter() - t0}  # fmt: skip
+                "substeps": int(start.problem.substeps), "map": guess}  # fmt: skip
+        ys = _simulate(record, model, line)
+        line.update(train=_rmse(ys, record, train), test=_rmse(ys, record, test),
+                    seconds=time.perf_counter() - t0)
         line["provenance"] = provenance(__file__, argv, line["seconds"])
         append_jsonl(args.out, line)
         lines.append(line)

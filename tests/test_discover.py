@@ -104,6 +104,10 @@ def test_bad_input_is_refused_before_any_fit(tmp_path):
         discover(rec, tmp_path, window=(0.0, 10.0))
     with pytest.raises(ParameterError, match="budget"):
         discover(rec, tmp_path, budget="huge")
+    with pytest.raises(ParameterError, match="unknown name 'a_yaw'"):  # not a base model parameter
+        discover(rec, tmp_path, priors={"a_yaw": 1.0})
+    with pytest.raises(ParameterError, match=r"'a_yaw' must be in \[0, 2\], found 3"):
+        discover(rec, tmp_path, base_effects=["yaw:thrust_tilt"], priors={"a_yaw": 3.0})
 
 
 def _csv(tmp_path):
@@ -132,6 +136,9 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys, monkeypatch):
                          (["--train", "0:20", "--test", "20:40"], "--test: window 20:40 s is outside"),
                          (["--max-effects", "0"], "--max-effects"),
                          (["--cold-starts", "-1"], "--cold-starts"),
+                         (["--fix", "a_yaw=1"], "--prior/--fix: unknown name 'a_yaw'"),
+                         (["--base-effects", "yaw:thrust_tilt", "--prior", "a_yaw=normal:1:1"],
+                          "puts mass outside its support (in [0, 2])"),
                          (["--scheduler", "tcp://127.0.0.1:1"],
                           "cannot reach a Dask scheduler")):  # fmt: skip
         code = main(["discover", str(csv), "--out", str(tmp_path / "o"), *argv])

@@ -504,6 +504,31 @@ def test_after_a_restart_only_the_candidates_worse_than_the_new_current_fit_are_
     assert list(beyond(results, again)) == ["winner", "equal"]
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("trap_record")
+def test_a_prior_change_reaches_the_fit_and_its_stored_signature(trap_record):
+    """A parameter fixed for a discovery run (``--fix``) stays at its value in a candidate's
+    MAP while the rest is fitted, and the fit's signature changes with it, so a rerun
+    under other priors fits again instead of reusing a fit of other settings."""
+    from heli_uq.discovery.candidates import FitTask, fitted_predictive
+    from heli_uq.discovery.rounds import task_signature
+    from heli_uq.model.prior import Prior
+
+    rec, base = trap_record
+    fixed = 0.02  # N m, off the truth (0): the MAP would not land on it
+    task = FitTask(rec, (0.0, 14.0), (14.0, 20.0), ("yaw:torque_offset",), (base.params,), 0, 1, 8)
+    pinned = dataclasses.replace(task, priors=(("T_0_yaw", Prior("fixed", fixed)),))
+    moved = dataclasses.replace(task, priors=(("T_0_yaw", Prior("fixed", 2 * fixed)),))
+    assert len({task_signature(rec, t) for t in (task, pinned, moved)}) == 3
+    fitted = fitted_predictive(pinned)
+    assert fitted.params["T_0_yaw"] == fixed
+    priors = fitted.start.problem.priors.params
+    assert priors["T_0_yaw"] == Prior("fixed", fixed)
+    # the free parameters moved to absorb the fixed offset: the fit is not the base's values
+    free = [n for n, p in priors.items() if p.kind != "fixed" and n in base.params]
+    assert free and any(not np.isclose(fitted.params[n], base.params[n], rtol=1e-6) for n in free)
+
+
 def test_the_store_keeps_each_task_of_a_model_for_a_rerun(tmp_path):
     """A model fitted twice (before and after a restart) is reused for both tasks; the
     latest fit is its ``result`` (what ``heli-uq design`` reads)."""
@@ -533,10 +558,11 @@ def test_the_refit_of_a_split_run_starts_from_the_candidates_map_alone(monkeypat
     from heli_uq.discovery import report
     from heli_uq.discovery.workflow import BUDGETS
 
-    seen = []
+    seen, priors = [], []
 
     def fake_sample_posterior(record, out, **kw):
         seen.append((kw["n_starts"], kw["guesses"], kw["train"], kw["test"], kw["adapt_mass_matrix"]))
+        priors.append(kw["priors"])
         raise StopIteration
 
     monkeypatch.setattr(report, "sample_posterior", fake_sample_posterior)
@@ -551,6 +577,14 @@ def test_the_refit_of_a_split_run_starts_from_the_candidates_map_alone(monkeypat
     with pytest.raises(StopIteration):  # the full budget adapts a dense mass matrix
         report._posterior(None, build_model([]), (0.0, 91.0), None, None, BUDGETS["full"], 0, guess)
     assert seen[-1][-1] is True
+    # a discovery run's prior changes reach the refit's posterior; without, the defaults
+    from heli_uq.model.prior import Prior
+
+    tilt = build_model(["yaw:thrust_tilt"])
+    with pytest.raises(StopIteration):
+        report._posterior(None, tilt, (0.0, 91.0), None, None, cost, 0, guess,
+                          priors=(("a_yaw", Prior("fixed", 1.0)),))  # fmt: skip
+    assert priors[:-1] == [None] * 3 and priors[-1].params["a_yaw"] == Prior("fixed", 1.0)
 
 
 def test_the_budgets_give_their_nuts_runs_the_time_their_targets_leave():

@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 
-from heli_uq.cli.options import EFFECTS_HELP, Formatter, out_dir
+from heli_uq.cli.options import EFFECTS_HELP, Formatter, add_prior_options, out_dir, prior_changes_from_args
 from heli_uq.errors import ParameterError
 
 __all__ = ["add_parser", "cmd_discover"]
@@ -17,6 +17,7 @@ def cmd_discover(args) -> int:
 
     from heli_uq.data import load_data, parse_window
     from heli_uq.discovery import BUDGETS, discover
+    from heli_uq.model import build_model
 
     if args.max_effects < 1:
         raise ParameterError(f"--max-effects: expected an integer >= 1, found {args.max_effects}")
@@ -25,6 +26,8 @@ def cmd_discover(args) -> int:
         if args.cold_starts < 0:
             raise ParameterError(f"--cold-starts: expected an integer >= 0, found {args.cold_starts}")
         budget = dataclasses.replace(BUDGETS[args.budget], cold_starts=args.cold_starts)
+    base = [s.strip() for s in (args.base_effects or "").split(",") if s.strip()]
+    priors = prior_changes_from_args(args, build_model(base, where="--base-effects"))
     numpyro.set_host_device_count(BUDGETS[args.budget].chains)
     record = load_data(args.data)
     window = parse_window(args.window) if args.window else None
@@ -34,12 +37,11 @@ def cmd_discover(args) -> int:
         raise ParameterError("--train and --test go together (fit on one, score on the other)")
     if window is not None and train is not None:
         raise ParameterError("--window cannot be combined with --train/--test")
-    base = [s.strip() for s in (args.base_effects or "").split(",") if s.strip()]
     candidates = [s.strip() for s in (args.candidates or "").split(",") if s.strip()] or None
     out = out_dir(args.out)
     result = discover(record, out, window=window, train=train, test=test, base_effects=base,
                       budget=budget, max_effects=args.max_effects, seed=args.seed,
-                      scheduler=args.scheduler, candidates=candidates)  # fmt: skip
+                      scheduler=args.scheduler, candidates=candidates, priors=priors)  # fmt: skip
     print(json.dumps({k: result[k] for k in ("effect", "axis", "parameters")}))
     print(f"wrote {out / 'discovery.json'}, report.md, bands_before.png, bands_after.png, "
           "residuals.png, candidates.png")  # fmt: skip
@@ -67,7 +69,9 @@ def add_parser(subparsers):
             "  sampling at the target stops with the draws made (at least 100 per chain)\n\n"
             "examples:\n"
             "  heli-uq discover experimental --train 0:91 --test 91:131 --max-effects 2 --out out/disc\n"
-            "  heli-uq discover rec.csv --budget full --scheduler tcp://host:8786 --out out/rec\n\n"
+            "  heli-uq discover rec.csv --budget full --scheduler tcp://host:8786 --out out/rec\n"
+            "  heli-uq discover experimental --train 0:91 --test 91:131 --base-effects \\\n"
+            "      yaw:coulomb_friction,yaw:torque_offset,yaw:thrust_tilt --fix a_yaw=1 --out out/tilt\n\n"
             + EFFECTS_HELP
         ),
         formatter_class=Formatter,
@@ -89,6 +93,7 @@ def add_parser(subparsers):
                         "those next to the current fit (default: the budget's, quick 0, full 1)")  # fmt: skip
     p.add_argument("--max-effects", type=int, default=1,
                    help="most effects to add, greedily, pairs considered (default: 1)")
+    add_prior_options(p)  # names of the base model; applied to every model fitted
     p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     p.add_argument("--scheduler", default="local", metavar="local|serial|ADDRESS",
                    help="candidate fits on a Dask LocalCluster (default), in this process "

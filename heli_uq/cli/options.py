@@ -15,8 +15,9 @@ from heli_uq.errors import ParameterError
 from heli_uq.model.terms.neural_torque import DEFAULT_HIDDEN  # of --model hybrid's networks
 
 __all__ = ["Formatter", "add_model_options", "model_from_args", "add_prior_options",
-           "priors_from_args", "check_positive", "out_dir", "positive_float", "EFFECTS_HELP",
-           "add_trust_options", "report_health", "EXIT_UNHEALTHY", "DEFAULT_HIDDEN"]  # fmt: skip
+           "priors_from_args", "prior_changes_from_args", "check_positive", "out_dir",
+           "positive_float", "EFFECTS_HELP", "add_trust_options", "report_health", "EXIT_UNHEALTHY",
+           "DEFAULT_HIDDEN"]  # fmt: skip
 
 #: Exit status of a run whose health checks failed under ``--strict``.
 EXIT_UNHEALTHY = 3
@@ -137,20 +138,37 @@ def add_prior_options(p) -> None:
                    help="fix a parameter (repeatable), e.g. --fix h=0")
 
 
-def priors_from_args(args, model):
-    """The :class:`~heli_uq.probability.PriorSet` of the model with the options applied."""
-    from heli_uq.probability.priors import PriorSet, load_priors_json, parse_prior_option
+def _option_changes(args) -> dict:
+    """``{name: Prior}`` of ``--prior`` and ``--fix`` (a later option wins)."""
+    from heli_uq.probability.priors import parse_prior_option
 
-    priors = PriorSet.default(model)
-    if args.priors is not None:
-        priors = priors.updated(model, load_priors_json(args.priors), where=args.priors)
     changes = dict(parse_prior_option(text, option="--prior") for text in (args.prior or []))
     for text in args.fix or []:
         name, prior = parse_prior_option(text, option="--fix")
         if prior.kind != "fixed":
             raise ParameterError(f"--fix: expected NAME=VALUE, found {text!r}")
         changes[name] = prior
-    return priors.updated(model, changes, where="--prior/--fix")
+    return changes
+
+
+def prior_changes_from_args(args, model) -> dict:
+    """``{name: Prior}`` of ``--priors``, ``--prior`` and ``--fix``, checked against ``model``
+    (each error names its file or option): the changes a run of several models applies
+    to each (``heli-uq discover``)."""
+    from heli_uq.probability.priors import load_priors_json
+
+    priors_from_args(args, model)  # the checks
+    return {**(load_priors_json(args.priors) if args.priors is not None else {}), **_option_changes(args)}
+
+
+def priors_from_args(args, model):
+    """The :class:`~heli_uq.probability.PriorSet` of the model with the options applied."""
+    from heli_uq.probability.priors import PriorSet, load_priors_json
+
+    priors = PriorSet.default(model)
+    if args.priors is not None:
+        priors = priors.updated(model, load_priors_json(args.priors), where=args.priors)
+    return priors.updated(model, _option_changes(args), where="--prior/--fix")
 
 
 def check_positive(args, names) -> None:

@@ -44,11 +44,13 @@ from heli_uq.inference import constrain_draws, importance_resample, prepare_star
 from heli_uq.inference.laplace_sampler import PARETO_K_MAX
 from heli_uq.inference.start import PoorBasin
 from heli_uq.model import AXES, RIG_FIT, X0_NAMES, build_model
+from heli_uq.model.prior import Prior
 from heli_uq.output.inference_data import simulate_draws
 from heli_uq.probability import make_problem
+from heli_uq.probability.priors import PriorSet
 
 __all__ = ["FitTask", "fit_and_score", "score_fitted", "Fitted", "fitted_predictive", "probe_values",
-           "warm_starts", "off_start", "NESTED_SLACK_NATS", "ABANDON_NATS", "OFF_FRACTION"]
+           "warm_starts", "off_start", "model_priors", "NESTED_SLACK_NATS", "ABANDON_NATS", "OFF_FRACTION"]
 
 #: A nested candidate's MAP may end this far [nats of -log posterior] above the current
 #: model's before it is refitted from "effect off".  The slack covers the new parameters'
@@ -170,6 +172,10 @@ class FitTask:
     off, floor : dict or None, float or None
         The nested fallback (module docstring): the start with the new effects switched
         off (:func:`off_start`) and the current model's ``-log p`` at its MAP.
+    priors : tuple of (str, Prior)
+        Changes to the model's default priors (:meth:`PriorSet.updated`), e.g. a
+        parameter of a base effect fixed; every candidate nests the base model, so each
+        name is a parameter of every candidate.
     """
 
     record: Experiment
@@ -183,6 +189,13 @@ class FitTask:
     newton_steps: int = 6
     off: dict | None = None
     floor: float | None = None
+    priors: tuple[tuple[str, Prior], ...] = ()
+
+
+def model_priors(model, changes) -> PriorSet | None:
+    """The default priors of ``model`` with ``changes`` (pairs ``(name, Prior)``, see
+    :attr:`FitTask.priors`) applied; None (the defaults) without changes."""
+    return PriorSet.default(model).updated(model, dict(changes)) if changes else None
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -206,7 +219,8 @@ def fitted_predictive(task: FitTask) -> Fitted:
     """MAP, Laplace draws and their simulations of ``task`` (module docstring)."""
     t0 = time.perf_counter()
     model = build_model(list(task.effects))
-    problem = make_problem(task.record, task.fit_window, task.score_window, model=model, error="iid")
+    problem = make_problem(task.record, task.fit_window, task.score_window, model=model,
+                           priors=model_priors(model, task.priors), error="iid")  # fmt: skip
     start, from_off = _nested_map(problem, task)
     params, x0 = start.map_point()
     params.update(zip(X0_NAMES, map(float, x0)))

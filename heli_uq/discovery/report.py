@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from heli_uq.discovery.candidates import FitTask, fitted_predictive
+from heli_uq.discovery.candidates import FitTask, fitted_predictive, model_priors
 from heli_uq.discovery.candidates_figure import candidates_figure
 from heli_uq.discovery.report_page import gap_warnings, report_page
 from heli_uq.discovery.score import gap_metrics, gap_text
@@ -56,10 +56,11 @@ def _masks(n: int, windows: dict, split: bool) -> dict:
     return out
 
 
-def _posterior(record, model, train, test, out, cost, seed, guess, time_limit=None):
+def _posterior(record, model, train, test, out, cost, seed, guess, time_limit=None, priors=()):
     """NUTS posterior of ``model`` (MAP warm-started from ``guess``, the model's fit on the
     fitting window): ``(idata, summary, y_sim, y_pred, y_obs, t)``.  ``time_limit`` [s]:
-    see :func:`heli_uq.output.sample_posterior`.
+    see :func:`heli_uq.output.sample_posterior`; ``priors``: see
+    :attr:`~heli_uq.discovery.candidates.FitTask.priors`.
 
     With a split the posterior is conditioned on the fitting window itself, where ``guess``
     is already the multi-start MAP of the same model, so it is the only start (more
@@ -68,8 +69,8 @@ def _posterior(record, model, train, test, out, cost, seed, guess, time_limit=No
     """
     starts = 1 if test is not None else cost.n_starts
     idata, summary = sample_posterior(record, out, model=model, train=train, test=test, sampler="nuts",
-                                      error="iid", chains=cost.chains, warmup=cost.warmup,
-                                      draws=cost.samples, seed=seed, progress=False,
+                                      error="iid", priors=model_priors(model, priors), chains=cost.chains,
+                                      warmup=cost.warmup, draws=cost.samples, seed=seed, progress=False,
                                       max_tree_depth=cost.max_tree_depth, n_starts=starts,
                                       adapt_mass_matrix=cost.adapt_mass_matrix,
                                       guesses=(guess,), time_limit=time_limit,
@@ -105,7 +106,7 @@ def _effect_parameters(summary_params: dict, effect: str) -> dict:
 
 def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_fit, where, ranking,
                   rows, steps, cost, budget, seed, full, refit, chosen_map, fit_window, score_window,
-                  n_scored, say, t_start) -> dict:  # fmt: skip
+                  n_scored, say, t_start, priors=()) -> dict:  # fmt: skip
     """Refit, compare and write every output (module docstring); returns ``discovery.json``."""
     search_seconds = time.perf_counter() - t_start
     train, test = refit
@@ -116,12 +117,13 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
         say("NUTS posterior of the base model (before); its times count from its own start")
         share = BEFORE_SHARE if added else 1.0  # of the time target left: the refit needs the rest
         _, _, bs, bp, by, bt = _posterior(record, base_model, train, test, out / "before", cost, seed,
-                                          base_fit.params, _time_left(cost, t_start, share))  # fmt: skip
+                                          base_fit.params, _time_left(cost, t_start, share),
+                                          priors)  # fmt: skip
         problem_windows = _windows_from(bt, train, test)
     else:
         fitted = base_fit if split else fitted_predictive(
             FitTask(record, train, None, tuple(base_effects), (base_fit.params,), seed, 1, cost.draws,
-                    cost.newton_steps))  # fmt: skip
+                    cost.newton_steps, priors=priors))  # fmt: skip
         bs, bp, by, bt = fitted.y_sim, fitted.y_pred, fitted.start.problem.y, fitted.start.problem.t
         problem_windows = fitted.start.problem.windows()
     before_masks = _masks(len(bt), problem_windows, split)
@@ -133,7 +135,7 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
             "from its own start")
         idata, summary, as_, ap, ay, at = _posterior(record, build_model(effects), train, test,
                                                      out / "refit", cost, seed, chosen_map,
-                                                     _time_left(cost, t_start))  # fmt: skip
+                                                     _time_left(cost, t_start), priors)  # fmt: skip
         masks_after = _masks(len(at), _windows_from(at, train, test), split)
         gap_after = _gap(as_, ap, ay, masks_after)
         params = parameter_summary(idata, build_model(effects))
@@ -170,7 +172,7 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
     seconds = (time.perf_counter() - t_start, search_seconds)
     atomic_write_text(out / "report.md", report_page(result, where, ranking, steps, base, label, fit_window,
                                                  score_window, n_scored, health, whole, seconds,
-                                                 record))  # fmt: skip
+                                                 record, base_model.label, priors))  # fmt: skip
     say(f"done: {result['decision']}")
     return result
 

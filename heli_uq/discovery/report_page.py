@@ -96,10 +96,22 @@ def _reused_text(candidates: list[dict]) -> str:
             "then).")
 
 
+def _model_lines(base_label, priors) -> list[str]:
+    """The base model and the priors changed in every model fitted (nothing if neither)."""
+    if base_label is None and not priors:
+        return []
+    text = f"Base model: {base_label}." if base_label else ""
+    if priors:
+        text += (" Priors changed from the defaults, in the base model, every candidate and the "
+                 "refit: " + ", ".join(f"`{n}`: {p.describe()}" for n, p in priors) + ".")  # fmt: skip
+    return [text.strip(), ""]
+
+
 def report_page(result, where, ranking, steps, base, budget, fit_window, score_window, n_scored, health,
-                whole, seconds, record) -> str:  # fmt: skip
+                whole, seconds, record, base_label=None, priors=()) -> str:  # fmt: skip
     """The text of ``report.md``.  ``seconds``: the whole run's and the search's (base
-    fit, candidates, decision) [s]."""
+    fit, candidates, decision) [s]; ``base_label``: the base model's; ``priors``: pairs
+    ``(name, Prior)`` changed from the defaults in every model fitted."""
     total, search = seconds
     lines = [f"# Discovery report: {pathlib.Path(str(record.source)).name}", "",
              f"**Decision.** {result['decision']}", "",
@@ -108,6 +120,7 @@ def report_page(result, where, ranking, steps, base, budget, fit_window, score_w
              f"Candidates fitted on {fit_window[0]:g}-"
              f"{fit_window[1]:g} s and scored on {score_window[0]:g}-{score_window[1]:g} s "
              f"({n_scored} samples in input-segment blocks).{_reused_text(result['candidates'])}", "",
+             *_model_lines(base_label, priors),
              "## 1. Where the base model fails", "",
              f"Worst axis: **{where['axis']}** (held-out RMSE / fitted error scale: pitch "
              f"{where['error_ratio']['theta']:.1f}, yaw {where['error_ratio']['psi']:.1f}).", "",

@@ -32,7 +32,7 @@ def task_signature(record: Experiment, task: FitTask) -> str:
         h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
     h.update(json.dumps([task.fit_window, task.score_window, task.effects, task.seed,
                          task.n_starts, task.draws, task.newton_steps, task.guesses, task.off,
-                         task.floor, FIT_VERSION],
+                         task.floor, [(n, p.to_json()) for n, p in task.priors], FIT_VERSION],
                         default=float).encode())  # fmt: skip
     return h.hexdigest()
 

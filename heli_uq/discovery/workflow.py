@@ -73,7 +73,7 @@ from heli_uq.errors import ParameterError
 from heli_uq.executor import check_scheduler
 from heli_uq.log import progress_log
 from heli_uq.model import AXES, EFFECTS, RIG_FIT, build_model
-from heli_uq.probability import check_split
+from heli_uq.probability import PriorSet, check_split
 
 __all__ = ["discover", "Budget", "BUDGETS", "FIT_FRACTION", "MIN_SECONDS"]  # fmt: skip
 
@@ -170,7 +170,7 @@ def _candidate_effects(current: list[str], vocabulary=None) -> list[str]:
 
 def discover(record: Experiment, out_dir, *, window=None, train=None, test=None, base_effects=(),
              budget="quick", max_effects: int = 1, candidates=None, seed: int = 0,
-             scheduler="local", log=None) -> dict:  # fmt: skip
+             scheduler="local", priors=None, log=None) -> dict:  # fmt: skip
     """Run the discovery workflow (module docstring) and write its outputs to ``out_dir``.
 
     Parameters
@@ -194,6 +194,11 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     seed : int
     scheduler : {"local", "serial"} or address
         See :func:`heli_uq.executor.run_tasks`.
+    priors : mapping, optional
+        Changes to the default priors, ``{name: Prior or JSON spec}``
+        (:meth:`~heli_uq.probability.PriorSet.updated`), applied to every model fitted:
+        the base model, each candidate and the refits.  Names are the base model's, e.g.
+        ``{"a_yaw": 1.0}`` fixes the tilt of a ``yaw:thrust_tilt`` base effect.
     log : callable, optional
         Progress messages (default: the ``logging`` INFO of this module, see :mod:`heli_uq.log`).
 
@@ -211,7 +216,10 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     cost = budget if isinstance(budget, Budget) else BUDGETS[budget]
     check_scheduler(scheduler)  # an unreachable scheduler fails now, not after the base fit
     base_effects = list(base_effects)
-    build_model(base_effects, where="base_effects")  # validates names
+    base_model = build_model(base_effects, where="base_effects")  # validates names
+    checked = PriorSet.default(base_model).updated(base_model, dict(priors or {}), where="priors")
+    every = {**checked.params, **checked.x0, **checked.noise}
+    changes = tuple((name, every[name]) for name in sorted(priors or {}))  # the checked Priors
     vocabulary = None if candidates is None else list(candidates)
     if vocabulary is not None:
         build_model(vocabulary, where="candidates")
@@ -225,7 +233,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         starts = len(guesses) + cold
         off, floor = (None, None) if nests is None else (off_start(nests[1], effects), nests[0]["map_value"])
         return FitTask(record, fit_w, score_w, tuple(effects), tuple(guesses), seed, starts,
-                       cost.draws, cost.newton_steps, off, floor)  # fmt: skip
+                       cost.draws, cost.newton_steps, off, floor, changes)  # fmt: skip
 
     def elapsed():
         return f"[{time.perf_counter() - t_start:5.0f} s]"
@@ -336,5 +344,5 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         seed=seed, full=cost.nuts_before, refit=(refit_train, refit_test), chosen_map=current_map,
         fit_window=fit_w,
         score_window=score_w,
-        n_scored=n_scored, say=say, t_start=t_start)  # fmt: skip
+        n_scored=n_scored, say=say, t_start=t_start, priors=changes)  # fmt: skip
     return result

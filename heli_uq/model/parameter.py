@@ -99,7 +99,8 @@ class Parameter:
 
     def describe_support(self) -> str:
         if isinstance(self.support, tuple):
-            return f"[{self.support[1]:g}, {self.support[2]:g}] {self.unit}"
+            unit = "" if self.unit == "1" else f" {self.unit}"
+            return f"in [{self.support[1]:g}, {self.support[2]:g}]{unit}"
         return {"positive": "> 0", "nonnegative": ">= 0", "real": "any real number"}[self.support]
 
     def start_value(self) -> float:
@@ -128,7 +129,8 @@ def check_value(param: Parameter, value, where: str) -> float:
     lo, hi = param.interval
     open_low = param.support == "positive"
     if x < lo or x > hi or (open_low and x <= lo):
-        raise ParameterError(f"{where}: parameter {param.name!r} ({param.unit}) must be "
+        unit = "" if param.unit == "1" else f" ({param.unit})"
+        raise ParameterError(f"{where}: parameter {param.name!r}{unit} must be "
                              f"{param.describe_support()}, found {value!r}")  # fmt: skip
     return x
 

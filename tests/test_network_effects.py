@@ -173,6 +173,18 @@ def test_a_torque_the_table_does_not_hold_is_not_named(yaw_columns):
     assert check_line("rec.csv", {"yaw": alone}, (0.0, 91.0), "o/check") == (
         "check them on held-out blocks: heli-uq discover rec.csv --window 0:91 --candidates "
         "yaw:torque_offset,yaw:deadband --max-effects 2 --out o/check")
+    # a network on top of named effects is checked against them (its base model, less the
+    # network), under the run's prior options; options --base-effects cannot carry are named
+    hybrid = build_model(["yaw:coulomb_friction", "yaw:thrust_tilt",
+                          {"effect": "coulomb_friction", "axis": "pitch", "omega_s": 0.01},
+                          {"effect": "neural_torque", "axis": "yaw", "inputs": "u,x,v",
+                           "hidden": 2}])  # fmt: skip
+    assert check_line("rec.csv", {"yaw": alone}, (0.0, 91.0), "o/check", model=hybrid,
+                      prior_options=["--fix", "a_yaw=1", "--priors", "my priors.json"]) == (
+        "check them on held-out blocks: heli-uq discover rec.csv --window 0:91 --base-effects "
+        "yaw:coulomb_friction,yaw:thrust_tilt,pitch:coulomb_friction --fix a_yaw=1 --priors 'my priors.json' "
+        "--candidates yaw:torque_offset,yaw:deadband --max-effects 2 --out o/check (its base model takes "
+        "each effect's default options; this run's differ for pitch:coulomb_friction)")  # fmt: skip
     # discover refuses windows under 20 s: the line says so instead of a command that fails
     assert check_line("rec.csv", {"yaw": alone}, (2.0, 16.4), "o").endswith(
         "needs a training window of at least 20 s; this one is 14.4 s")

@@ -84,6 +84,15 @@ def cmd_sample(args) -> int:
     return report_health(summary, args.strict)
 
 
+def _prior_words(args) -> list[str]:
+    """The run's ``--priors``, ``--prior`` and ``--fix`` as command-line words."""
+    words = ["--priors", args.priors] if args.priors is not None else []
+    for flag, values in (("--prior", args.prior), ("--fix", args.fix)):
+        for v in values or []:
+            words += [flag, v]
+    return words
+
+
 def _name_state_networks(args, model, idata, out, summary: dict, window) -> None:
     """For a network of the states: which effects of the table it learned
     (:func:`heli_uq.discovery.network_effects.network_effects_of`), printed and stored in
@@ -105,7 +114,8 @@ def _name_state_networks(args, model, idata, out, summary: dict, window) -> None
                                   for axis in state_networks(model)}  # fmt: skip
     for axis, found in summary["network_effects"].items():
         print(effects_sentence(axis, found))
-    line = check_line(args.data, summary["network_effects"], window, out / "check")
+    line = check_line(args.data, summary["network_effects"], window, out / "check", model=model,
+                      prior_options=_prior_words(args))  # fmt: skip
     if line:
         print(line)
     write_summary(out, summary)

@@ -53,6 +53,7 @@ Layer 8 (discovery).
 from __future__ import annotations
 
 import json
+import shlex
 import warnings
 
 import jax
@@ -61,6 +62,7 @@ import numpy as np
 
 from heli_uq.discovery.network_equation import INCLUDE, bic_path_fit
 from heli_uq.errors import ParameterError
+from heli_uq.model import build_model
 from heli_uq.model.spec import with_effects
 from heli_uq.model.terms import EFFECTS, NeuralTorque
 from heli_uq.model.terms.base import AbstractInputMap, residual_projector
@@ -346,12 +348,19 @@ def check_candidates(found: dict) -> list[str]:
     return out
 
 
-def check_line(data: str, found: dict, window, out) -> str | None:
+def check_line(data: str, found: dict, window, out, *, model=None, prior_options=()) -> str | None:
     """The line ``heli-uq sample`` prints after naming: the ``heli-uq discover`` command of
     the held-out check of the effects named in ``found`` (``{axis: network_effects_of(...)}``)
     on the training ``window`` ``(a, b)`` [s] of the record ``data``, writing to ``out``; or,
     for a window shorter than discovery's :data:`~heli_uq.discovery.workflow.MIN_SECONDS`,
-    why there is none.  ``None`` if :func:`check_candidates` finds no candidate."""
+    why there is none.  ``None`` if :func:`check_candidates` finds no candidate.
+
+    ``model``: the sampled model; its effects other than the networks are the check's
+    ``--base-effects`` (the candidates are judged against that model less its networks, not
+    the paper's), and an effect whose options differ from its defaults, which
+    ``--base-effects`` cannot carry, is named in the line.  ``prior_options``: the run's
+    prior options as command-line words (``["--fix", "a_yaw=1", ...]``), carried over.
+    """
     from heli_uq.discovery.workflow import MIN_SECONDS
 
     candidates = check_candidates(found)
@@ -361,5 +370,32 @@ def check_line(data: str, found: dict, window, out) -> str | None:
     if b - a < MIN_SECONDS:
         return (f"a check of them on held-out blocks (heli-uq discover) needs a training window of at "
                 f"least {MIN_SECONDS:g} s; this one is {b - a:g} s")  # fmt: skip
-    return (f"check them on held-out blocks: heli-uq discover {data} --window {a:g}:{b:g} --candidates "
-            f"{','.join(candidates)} --max-effects {len(candidates)} --out {out}")  # fmt: skip
+    base, lost = _base_effects(model)
+    words = ([f"--base-effects {','.join(base)}"] if base else []) + [shlex.quote(w) for w in prior_options]
+    line = (f"check them on held-out blocks: heli-uq discover {data} --window {a:g}:{b:g} "
+            + "".join(f"{w} " for w in words)
+            + f"--candidates {','.join(candidates)} --max-effects {len(candidates)} --out {out}")  # fmt: skip
+    if lost:
+        line += (" (its base model takes each effect's default options; this run's differ for "
+                 f"{', '.join(lost)})")
+    return line
+
+
+#: Terms that are not named effects of a base model (a network or a fitted function).
+_NOT_BASE = ("neural_torque", "gp_torque", "feature_torque")
+
+
+def _base_effects(model) -> tuple[list[str], list[str]]:
+    """``(["axis:kind", ...], [those whose options are not the defaults])`` of ``model``'s
+    named effects (``([], [])`` without a model)."""
+    if model is None:
+        return [], []
+    base, lost = [], []
+    for spec in model.describe()["effects"]:
+        if spec["effect"] in _NOT_BASE:
+            continue
+        name = f"{spec['axis']}:{spec['effect']}"
+        base.append(name)
+        if build_model([name]).describe()["effects"][0] != spec:
+            lost.append(name)
+    return base, lost

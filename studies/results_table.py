@@ -48,6 +48,9 @@ POSTERIOR_ROWS = (
      "geometry), NUTS on 0–91 s, test 91–131 s (iid, 4 chains, ω_ψ(0) = 0; 13 divergences: UNCONVERGED; "
      "another job on the cores)",
      "nuts_iid_friction_offset_tilt1_yaw_train0-91_test91-131_rest.summary.json"),
+    ("the same, target acceptance 0.95, seed 2 (2 divergences, 33 % of draws at tree depth 6: "
+     "UNCONVERGED; another job on the cores for its first 13 min)",
+     "nuts_iid_friction_offset_tilt1_yaw_train0-91_test91-131_rest_ta095.summary.json"),
 )
 
 

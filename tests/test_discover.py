@@ -108,6 +108,8 @@ def test_bad_input_is_refused_before_any_fit(tmp_path):
         discover(rec, tmp_path, priors={"a_yaw": 1.0})
     with pytest.raises(ParameterError, match=r"'a_yaw' must be in \[0, 2\], found 3"):
         discover(rec, tmp_path, base_effects=["yaw:thrust_tilt"], priors={"a_yaw": 3.0})
+    with pytest.raises(ParameterError, match=r"'a_yaw' must be in \[0, 2\], found 3"):  # a candidate's
+        discover(rec, tmp_path, candidates=["yaw:thrust_tilt"], priors={"a_yaw": 3.0})
 
 
 def _csv(tmp_path):

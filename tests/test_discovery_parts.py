@@ -529,6 +529,30 @@ def test_a_prior_change_reaches_the_fit_and_its_stored_signature(trap_record):
     assert free and any(not np.isclose(fitted.params[n], base.params[n], rtol=1e-6) for n in free)
 
 
+def test_a_run_s_prior_changes_reach_the_models_that_have_the_parameter():
+    """``--fix a_yaw=1`` with the tilt as a candidate: the candidate's model is fitted at the
+    fixed tilt, the base model (without the tilt) at its defaults; the initial state's
+    change holds in both.  A fixed parameter is no fitted coordinate, so it costs the
+    candidate no BIC penalty in the fitting window's support."""
+    from heli_uq.discovery.candidates import model_priors
+    from heli_uq.discovery.decide import _training_support
+    from heli_uq.discovery.workflow import checked_priors
+    from heli_uq.model.prior import Prior
+
+    base, candidate = ["yaw:torque_offset"], "yaw:thrust_tilt"
+    changes = checked_priors(base + [candidate], {"a_yaw": 1.0, "omega_psi0": 0.0})
+    assert changes == (("a_yaw", Prior("fixed", 1.0)), ("omega_psi0", Prior("fixed", 0.0)))
+    with_tilt = model_priors(build_model(base + [candidate]), changes)
+    without = model_priors(build_model(base), changes)
+    assert with_tilt.params["a_yaw"] == Prior("fixed", 1.0)
+    assert "a_yaw" not in without.params and without.x0["omega_psi0"] == Prior("fixed", 0.0)
+    assert model_priors(build_model(base), (("a_yaw", Prior("fixed", 1.0)),)) is None
+    n_fit = 9100
+    fit = {"map_value": -100.0, "map": {"x": 0.0, "a_yaw": 1.0}}
+    assert _training_support({**fit, "n_fitted": 1}, n_fit) - _training_support(fit, n_fit) == (
+        pytest.approx(0.5 * np.log(n_fit)))  # fmt: skip
+
+
 def test_the_store_keeps_each_task_of_a_model_for_a_rerun(tmp_path):
     """A model fitted twice (before and after a restart) is reused for both tasks; the
     latest fit is its ``result`` (what ``heli-uq design`` reads)."""

@@ -17,7 +17,7 @@ def cmd_discover(args) -> int:
 
     from heli_uq.data import load_data, parse_window
     from heli_uq.discovery import BUDGETS, discover
-    from heli_uq.model import build_model
+    from heli_uq.model import AXES, EFFECTS, build_model
 
     if args.max_effects < 1:
         raise ParameterError(f"--max-effects: expected an integer >= 1, found {args.max_effects}")
@@ -27,7 +27,12 @@ def cmd_discover(args) -> int:
             raise ParameterError(f"--cold-starts: expected an integer >= 0, found {args.cold_starts}")
         budget = dataclasses.replace(BUDGETS[args.budget], cold_starts=args.cold_starts)
     base = [s.strip() for s in (args.base_effects or "").split(",") if s.strip()]
-    priors = prior_changes_from_args(args, build_model(base, where="--base-effects"))
+    build_model(base, where="--base-effects")
+    candidates = [s.strip() for s in (args.candidates or "").split(",") if s.strip()] or None
+    pool = candidates or [f"{axis}:{kind}" for axis in AXES for kind in EFFECTS]
+    # prior options name parameters of the base model or of a candidate effect
+    every = build_model(base + [e for e in pool if e not in base], where="--candidates")
+    priors = prior_changes_from_args(args, every)
     numpyro.set_host_device_count(BUDGETS[args.budget].chains)
     record = load_data(args.data)
     window = parse_window(args.window) if args.window else None
@@ -37,7 +42,6 @@ def cmd_discover(args) -> int:
         raise ParameterError("--train and --test go together (fit on one, score on the other)")
     if window is not None and train is not None:
         raise ParameterError("--window cannot be combined with --train/--test")
-    candidates = [s.strip() for s in (args.candidates or "").split(",") if s.strip()] or None
     out = out_dir(args.out)
     result = discover(record, out, window=window, train=train, test=test, base_effects=base,
                       budget=budget, max_effects=args.max_effects, seed=args.seed,
@@ -71,7 +75,10 @@ def add_parser(subparsers):
             "  heli-uq discover experimental --train 0:91 --test 91:131 --max-effects 2 --out out/disc\n"
             "  heli-uq discover rec.csv --budget full --scheduler tcp://host:8786 --out out/rec\n"
             "  heli-uq discover experimental --train 0:91 --test 91:131 --base-effects \\\n"
-            "      yaw:coulomb_friction,yaw:torque_offset,yaw:thrust_tilt --fix a_yaw=1 --out out/tilt\n\n"
+            "      yaw:coulomb_friction,yaw:torque_offset,yaw:thrust_tilt --fix a_yaw=1 --out out/tilt\n"
+            "  heli-uq discover experimental --train 0:91 --test 91:131 --base-effects \\\n"
+            "      yaw:coulomb_friction,yaw:torque_offset --candidates yaw:thrust_tilt,yaw:stiction \\\n"
+            "      --fix a_yaw=1 --out out/tilt_candidate   # a derived term offered at its fixed value\n\n"
             + EFFECTS_HELP
         ),
         formatter_class=Formatter,
@@ -93,7 +100,7 @@ def add_parser(subparsers):
                         "those next to the current fit (default: the budget's, quick 0, full 1)")  # fmt: skip
     p.add_argument("--max-effects", type=int, default=1,
                    help="most effects to add, greedily, pairs considered (default: 1)")
-    add_prior_options(p)  # names of the base model; applied to every model fitted
+    add_prior_options(p)  # of the base model's or a candidate's parameters; in every model that has them
     p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     p.add_argument("--scheduler", default="local", metavar="local|serial|ADDRESS",
                    help="candidate fits on a Dask LocalCluster (default), in this process "

@@ -173,9 +173,9 @@ class FitTask:
         The nested fallback (module docstring): the start with the new effects switched
         off (:func:`off_start`) and the current model's ``-log p`` at its MAP.
     priors : tuple of (str, Prior)
-        Changes to the model's default priors (:meth:`PriorSet.updated`), e.g. a
-        parameter of a base effect fixed; every candidate nests the base model, so each
-        name is a parameter of every candidate.
+        Changes to the default priors (:meth:`PriorSet.updated`) of a discovery run, e.g.
+        a parameter of a base effect, or of a candidate effect, fixed; the model takes
+        those of its own parameters (:func:`model_priors`).
     """
 
     record: Experiment
@@ -193,9 +193,13 @@ class FitTask:
 
 
 def model_priors(model, changes) -> PriorSet | None:
-    """The default priors of ``model`` with ``changes`` (pairs ``(name, Prior)``, see
-    :attr:`FitTask.priors`) applied; None (the defaults) without changes."""
-    return PriorSet.default(model).updated(model, dict(changes)) if changes else None
+    """The default priors of ``model`` with those of ``changes`` (pairs ``(name, Prior)``,
+    see :attr:`FitTask.priors`) that name its parameters, initial state or error scales
+    applied (a change of a candidate effect's parameter holds where that effect is in the
+    model); None (the defaults) if none apply."""
+    default = PriorSet.default(model)
+    own = {name: prior for name, prior in changes if name in default.names}
+    return default.updated(model, own) if own else None
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -282,7 +286,8 @@ def score_fitted(fitted: Fitted, task: FitTask) -> dict:
     Returns
     -------
     dict
-        ``effects``, ``map`` (physical parameters and initial state), ``map_value``,
+        ``effects``, ``map`` (physical parameters and initial state), ``n_fitted`` (the
+        coordinates the MAP fitted: free parameters, initial state and error scales), ``map_value``,
         ``map_decrement``, ``substeps``, ``fit`` and ``score`` gap metrics (fitting and
         held-out window), ``block_scores`` [nats] on the held-out window, ``laplace``
         (the importance resampling: ``pareto_k``, ``ess``, ``distinct``, ``predictive``),
@@ -292,7 +297,7 @@ def score_fitted(fitted: Fitted, task: FitTask) -> dict:
     problem = fitted.start.problem
     windows = problem.windows()
     a, b = windows["train"]
-    out = {"effects": list(task.effects), "map": fitted.params,
+    out = {"effects": list(task.effects), "map": fitted.params, "n_fitted": int(np.size(fitted.start.x_map)),
            "map_value": fitted.start.map_value, "map_decrement": fitted.start.map_decrement,
            "substeps": problem.substeps, "off_start": fitted.from_off, "laplace": fitted.importance,
            "fit": gap_metrics(fitted.y_sim[:, a:b], fitted.y_pred[:, a:b], problem.y[a:b])}  # fmt: skip

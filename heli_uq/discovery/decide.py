@@ -85,8 +85,11 @@ def pairs_to_fit(rows: list[dict], top: int, anchors: int) -> list[tuple[str, st
 
 def _training_support(result: dict, n_fit: int) -> float:
     """Log posterior at the MAP on the fitting window, less ``0.5 log(n_fit)`` per fitted
-    parameter (a BIC penalty) [nats]: the tie-break between held-out-equal candidates."""
-    return -float(result["map_value"]) - 0.5 * len(result["map"]) * np.log(n_fit)
+    coordinate (a BIC penalty; a parameter fixed by the run's priors costs nothing) [nats]:
+    the tie-break between held-out-equal candidates.  A stored fit without ``n_fitted``
+    counts its MAP's entries."""
+    n = result.get("n_fitted", len(result["map"]))
+    return -float(result["map_value"]) - 0.5 * n * np.log(n_fit)
 
 
 def _break_ties(best: dict, passing: list[dict], results: dict, n_scored: int, n_fit: int) -> dict:

@@ -75,7 +75,7 @@ from heli_uq.log import progress_log
 from heli_uq.model import AXES, EFFECTS, RIG_FIT, build_model
 from heli_uq.probability import PriorSet, check_split
 
-__all__ = ["discover", "Budget", "BUDGETS", "FIT_FRACTION", "MIN_SECONDS"]  # fmt: skip
+__all__ = ["discover", "checked_priors", "Budget", "BUDGETS", "FIT_FRACTION", "MIN_SECONDS"]  # fmt: skip
 
 #: Fraction of the window the candidates are fitted on when no train/test split is given.
 FIT_FRACTION = 0.7
@@ -168,6 +168,21 @@ def _candidate_effects(current: list[str], vocabulary=None) -> list[str]:
     return [e for e in pool if e not in have]
 
 
+def checked_priors(effects: list[str], priors) -> tuple:
+    """``priors`` (``{name: Prior or JSON spec}``) checked against the model of every
+    effect a run may add (names, supports), as sorted pairs ``(name, Prior)``.
+
+    Raises
+    ------
+    ParameterError
+        An unknown name, a value or prior outside its parameter's support.
+    """
+    every = build_model(effects)
+    checked = PriorSet.default(every).updated(every, dict(priors or {}), where="priors")
+    found = {**checked.params, **checked.x0, **checked.noise}
+    return tuple((name, found[name]) for name in sorted(priors or {}))
+
+
 def discover(record: Experiment, out_dir, *, window=None, train=None, test=None, base_effects=(),
              budget="quick", max_effects: int = 1, candidates=None, seed: int = 0,
              scheduler="local", priors=None, log=None) -> dict:  # fmt: skip
@@ -196,9 +211,11 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         See :func:`heli_uq.executor.run_tasks`.
     priors : mapping, optional
         Changes to the default priors, ``{name: Prior or JSON spec}``
-        (:meth:`~heli_uq.probability.PriorSet.updated`), applied to every model fitted:
-        the base model, each candidate and the refits.  Names are the base model's, e.g.
-        ``{"a_yaw": 1.0}`` fixes the tilt of a ``yaw:thrust_tilt`` base effect.
+        (:meth:`~heli_uq.probability.PriorSet.updated`), applied to every model fitted
+        that has the parameter: the base model, each candidate and the refits.  Names are
+        parameters of the base model or of a candidate effect, e.g. ``{"a_yaw": 1.0}``
+        fixes the tilt of a ``yaw:thrust_tilt`` base effect, or offers that effect as a
+        candidate at its derived tilt, without a free parameter.
     log : callable, optional
         Progress messages (default: the ``logging`` INFO of this module, see :mod:`heli_uq.log`).
 
@@ -216,13 +233,11 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     cost = budget if isinstance(budget, Budget) else BUDGETS[budget]
     check_scheduler(scheduler)  # an unreachable scheduler fails now, not after the base fit
     base_effects = list(base_effects)
-    base_model = build_model(base_effects, where="base_effects")  # validates names
-    checked = PriorSet.default(base_model).updated(base_model, dict(priors or {}), where="priors")
-    every = {**checked.params, **checked.x0, **checked.noise}
-    changes = tuple((name, every[name]) for name in sorted(priors or {}))  # the checked Priors
+    build_model(base_effects, where="base_effects")  # validates names
     vocabulary = None if candidates is None else list(candidates)
     if vocabulary is not None:
         build_model(vocabulary, where="candidates")
+    changes = checked_priors(base_effects + _candidate_effects(base_effects, vocabulary), priors)
     fit_w, score_w, (refit_train, refit_test) = _windows(record, window, train, test)
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -102,8 +102,9 @@ def _model_lines(base_label, priors) -> list[str]:
         return []
     text = f"Base model: {base_label}." if base_label else ""
     if priors:
-        text += (" Priors changed from the defaults, in the base model, every candidate and the "
-                 "refit: " + ", ".join(f"`{n}`: {p.describe()}" for n, p in priors) + ".")  # fmt: skip
+        text += (" Priors changed from the defaults, in every model fitted that has the parameter "
+                 "(base, candidates, refit): "
+                 + ", ".join(f"`{n}`: {p.describe()}" for n, p in priors) + ".")  # fmt: skip
     return [text.strip(), ""]
 
 
@@ -111,7 +112,7 @@ def report_page(result, where, ranking, steps, base, budget, fit_window, score_w
                 whole, seconds, record, base_label=None, priors=()) -> str:  # fmt: skip
     """The text of ``report.md``.  ``seconds``: the whole run's and the search's (base
     fit, candidates, decision) [s]; ``base_label``: the base model's; ``priors``: pairs
-    ``(name, Prior)`` changed from the defaults in every model fitted."""
+    ``(name, Prior)`` changed from the defaults in every model fitted that has the name."""
     total, search = seconds
     lines = [f"# Discovery report: {pathlib.Path(str(record.source)).name}", "",
              f"**Decision.** {result['decision']}", "",

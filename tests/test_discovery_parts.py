@@ -536,7 +536,7 @@ def test_a_run_s_prior_changes_reach_the_models_that_have_the_parameter():
     candidate no BIC penalty in the fitting window's support."""
     from heli_uq.discovery.candidates import model_priors
     from heli_uq.discovery.decide import _training_support
-    from heli_uq.discovery.workflow import checked_priors
+    from heli_uq.discovery.workflow import checked_priors, cold_starts
     from heli_uq.model.prior import Prior
 
     base, candidate = ["yaw:torque_offset"], "yaw:thrust_tilt"
@@ -547,6 +547,10 @@ def test_a_run_s_prior_changes_reach_the_models_that_have_the_parameter():
     assert with_tilt.params["a_yaw"] == Prior("fixed", 1.0)
     assert "a_yaw" not in without.params and without.x0["omega_psi0"] == Prior("fixed", 0.0)
     assert model_priors(build_model(base), (("a_yaw", Prior("fixed", 1.0)),)) is None
+    # with every new parameter fixed the candidate nests nothing: at least one cold start
+    assert cold_starts(0, base, candidate, changes) == 1 and cold_starts(2, base, candidate, changes) == 2
+    assert cold_starts(0, base, candidate, changes[1:]) == 0  # the tilt free: warm starts suffice
+    assert cold_starts(0, base, "yaw:coulomb_friction", changes) == 0
     n_fit = 9100
     fit = {"map_value": -100.0, "map": {"x": 0.0, "a_yaw": 1.0}}
     assert _training_support({**fit, "n_fitted": 1}, n_fit) - _training_support(fit, n_fit) == (

@@ -355,11 +355,9 @@ def check_line(data: str, found: dict, window, out, *, model=None, prior_options
     for a window shorter than discovery's :data:`~heli_uq.discovery.workflow.MIN_SECONDS`,
     why there is none.  ``None`` if :func:`check_candidates` finds no candidate.
 
-    ``model``: the sampled model; its effects other than the networks are the check's
-    ``--base-effects`` (the candidates are judged against that model less its networks, not
-    the paper's), and an effect whose options differ from its defaults, which
-    ``--base-effects`` cannot carry, is named in the line.  ``prior_options``: the run's
-    prior options as command-line words (``["--fix", "a_yaw=1", ...]``), carried over.
+    ``model``: the sampled model, whose named effects are the check's ``--base-effects``
+    (an effect whose options ``--base-effects`` cannot carry is named in the line);
+    ``prior_options``: the run's prior options as words (``["--fix", "a_yaw=1"]``).
     """
     from heli_uq.discovery.workflow import MIN_SECONDS
 

@@ -16,8 +16,8 @@ def cmd_discover(args) -> int:
     import numpyro
 
     from heli_uq.data import load_data, parse_window
-    from heli_uq.discovery import BUDGETS, discover
-    from heli_uq.model import AXES, EFFECTS, build_model
+    from heli_uq.discovery import BUDGETS, candidate_effects, discover
+    from heli_uq.model import build_model
 
     if args.max_effects < 1:
         raise ParameterError(f"--max-effects: expected an integer >= 1, found {args.max_effects}")
@@ -29,9 +29,8 @@ def cmd_discover(args) -> int:
     base = [s.strip() for s in (args.base_effects or "").split(",") if s.strip()]
     build_model(base, where="--base-effects")
     candidates = [s.strip() for s in (args.candidates or "").split(",") if s.strip()] or None
-    pool = candidates or [f"{axis}:{kind}" for axis in AXES for kind in EFFECTS]
     # prior options name parameters of the base model or of a candidate effect
-    every = build_model(base + [e for e in pool if e not in base], where="--candidates")
+    every = build_model(base + candidate_effects(base, candidates), where="--candidates")
     priors = prior_changes_from_args(args, every)
     numpyro.set_host_device_count(BUDGETS[args.budget].chains)
     record = load_data(args.data)

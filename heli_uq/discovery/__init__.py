@@ -16,6 +16,8 @@ from heli_uq.discovery.score import MARGIN_PER_SAMPLE as MARGIN_PER_SAMPLE
 from heli_uq.discovery.score import MARGIN_SE as MARGIN_SE
 from heli_uq.discovery.workflow import BUDGETS as BUDGETS
 from heli_uq.discovery.workflow import Budget as Budget
+from heli_uq.discovery.workflow import candidate_effects as candidate_effects
 from heli_uq.discovery.workflow import discover as discover
 
-__all__ = ["discover", "Budget", "BUDGETS", "MARGIN_SE", "MARGIN_PER_SAMPLE", "DISCOVERY_KEYS"]
+__all__ = ["discover", "Budget", "BUDGETS", "MARGIN_SE", "MARGIN_PER_SAMPLE", "DISCOVERY_KEYS",
+           "candidate_effects"]

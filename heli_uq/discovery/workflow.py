@@ -163,7 +163,10 @@ def _windows(record: Experiment, window, train, test):
     return fit, score, refit
 
 
-def _candidate_effects(current: list[str], vocabulary=None) -> list[str]:
+def candidate_effects(current: list[str], vocabulary=None) -> list[str]:
+    """The effects a step may add to the model of the effects ``current``: those of
+    ``vocabulary`` (``"axis:effect"`` strings; default every effect of the table on each
+    axis) that it does not hold yet, in order."""
     have = set(current)
     pool = vocabulary or [f"{axis}:{kind}" for axis in AXES for kind in EFFECTS]
     return [e for e in pool if e not in have]
@@ -252,7 +255,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     vocabulary = None if candidates is None else list(candidates)
     if vocabulary is not None:
         build_model(vocabulary, where="candidates")
-    changes = checked_priors(base_effects + _candidate_effects(base_effects, vocabulary), priors)
+    changes = checked_priors(base_effects + candidate_effects(base_effects, vocabulary), priors)
     fit_w, score_w, (refit_train, refit_test) = _windows(record, window, train, test)
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -288,7 +291,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     model = build_model(base_effects)
     data = implied_torque(model, base_fit.params, fw.y, fw.u, record.dt)
     cands = {e: effect_features(model, base_fit.params, e, data)
-             for e in _candidate_effects(base_effects, vocabulary)}
+             for e in candidate_effects(base_effects, vocabulary)}
     ranking = rank_effects(data.residual, base_features(model, base_fit.params, data), cands, seed=seed)
     implied = {r["effect"]: r["implied"] for r in ranking}
     say("sparse regression (pysindy) on the implied torque: "
@@ -300,7 +303,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     restarted, kept = False, {}
     while len(current) - len(base_effects) < max_effects:
         singles = {}
-        for e in _candidate_effects(current, vocabulary):
+        for e in candidate_effects(current, vocabulary):
             if (key := model_key(current + [e])) not in kept:
                 starts = warm_starts(current_map, current + [e], implied.get(e, {}))
                 cold = cold_starts(cost.cold_starts, current, e, changes)

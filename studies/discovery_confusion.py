@@ -15,8 +15,9 @@ friction is smoothed over ``W`` rad/s instead of the fitted term's width (anothe
 simulator's friction law); with ``--hold MIN:MAX`` the staircase's levels are held
 ``MIN``-``MAX`` s instead of 3-14 s (another staircase: more and shorter input segments).
 Then ``heli_uq.discovery.discover`` runs on it (``--budget``, train 0-91 s / test
-91-131 s).  A case of two effects joined by ``+`` (``yaw:torque_offset+pitch:deadband``)
-hides both and runs with ``max_effects=2``.
+91-131 s; ``--fix NAME=VALUE`` fixes a parameter in every model it fits).  A case of two
+effects joined by ``+`` (``yaw:torque_offset+pitch:deadband``) hides both and runs with
+``max_effects=2``.
 
 Writes one JSON line per case to ``--out`` (default
 ``studies/results/discovery_confusion.jsonl``): the truth, what was named, whether each
@@ -55,11 +56,16 @@ from heli_uq.simulation.synthetic import ENCODER_QUANTUM, RIG_RANGES, step_input
 HIDDEN = {
     "yaw": {"deadband": {"delta": 0.3}, "coulomb_friction": {"F_c": 0.012},
             "quadratic_drag": {"c": 0.1}, "torsional_spring": {"k": 0.01, "psi_0": 0.5},
-            "quadratic_thrust": {"k_q": 0.02}, "torque_offset": {"T_0": -0.01}},
+            "quadratic_thrust": {"k_q": 0.02}, "torque_offset": {"T_0": -0.01},
+            "thrust_tilt": {"a": 1.0}},
     "pitch": {"deadband": {"delta": 0.3}, "coulomb_friction": {"F_c": 0.003},
               "quadratic_drag": {"c": 0.02}, "torsional_spring": {"k": 0.003, "psi_0": -0.5},
               "quadratic_thrust": {"k_q": 0.001}, "torque_offset": {"T_0": 0.002}},
 }  # fmt: skip
+#: Cases outside the effects table (``--cases yaw:thrust_tilt``, never by default): the
+#: derived ``cos theta`` of the yaw torques, hidden at its derivation ``a = 1``; offered as a
+#: candidate with ``--candidates yaw:thrust_tilt ... --fix a_yaw=1`` as on the rig record.
+EXTRA_CASES = ("yaw:thrust_tilt",)
 #: A record whose pitch leaves this range [rad] is refused: the real rig hits its stops
 #: long before the body turns over (on the seed-3 staircase a pitch thrust k_q = 0.002
 #: N m/V^2 already lifts it to 7.8 rad, 0.005 spins it through 170 rad).
@@ -142,13 +148,15 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
         windows = {} if args.no_split else {"train": (0.0, split), "test": (split, args.seconds)}
         res = discover(rec, tmp, **windows, budget=args.budget,
                        seed=seed, scheduler=args.scheduler, candidates=args.candidates,
-                       max_effects=max(1, len(model.effects)))  # fmt: skip
+                       max_effects=max(1, len(model.effects)), priors=dict(args.fix))  # fmt: skip
     added = {f"{a['axis']}:{a['effect']}": a["parameters"] for a in res["added"]}
     named = "+".join(added) or "none"
     covered = {}
     if set(added) == set(case.split("+")):
         for term in model.effects:
             for p in term.parameters():
+                if p.name in dict(args.fix):  # fixed by --fix: not estimated, not reported
+                    continue
                 ci = added[f"{term.axis}:{term.kind}"][p.bare]["ci95"]
                 covered[p.name] = {"truth": truth[p.name], "ci95": ci,
                                    "covered": ci[0] <= truth[p.name] <= ci[1]}
@@ -166,6 +174,7 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
                if args.hidden_omega_s is not None else {}),
             **({"hold": list(args.hold)} if args.hold is not None else {}),
             **({"split": False} if args.no_split else {}),
+            **({"fix": dict(args.fix)} if args.fix else {}),
             **({"refit": refit_facts(keep / "refit" / "summary.json")} if keep else {})}  # fmt: skip
 
 
@@ -214,6 +223,15 @@ def hidden_value(text: str):
                                          f"HIDDEN ({err})") from None
 
 
+def _fixed(text: str) -> tuple[str, float]:
+    """``"NAME=VALUE"`` -> ``(name, value)``: a parameter fixed in every model discover fits."""
+    name, _, value = text.partition("=")
+    try:
+        return name.strip(), float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected NAME=VALUE, e.g. a_yaw=1") from None
+
+
 def _hold(text: str) -> tuple[float, float]:
     """``"MIN:MAX"`` [s] -> ``(min, max)``, 0 < min <= max."""
     try:
@@ -230,7 +248,7 @@ def main(argv=None) -> int:
 
     def case(text):  # "none", "axis:effect" or two of them joined by "+"
         parts = text.split("+")
-        known = set(parts) <= set(all_cases[1:]) and len(set(parts)) == len(parts) <= 2
+        known = set(parts) <= set(all_cases[1:]) | set(EXTRA_CASES) and len(set(parts)) == len(parts) <= 2
         if text != "none" and not known:
             raise argparse.ArgumentTypeError(f"{text!r}: expected none, axis:effect or two joined by +")
         return text
@@ -248,6 +266,9 @@ def main(argv=None) -> int:
     ap.add_argument("--hidden", nargs="+", default=[], type=hidden_value, dest="overrides",
                     metavar="AXIS:EFFECT:NAME=VALUE",
                     help="hidden values other than HIDDEN's, e.g. pitch:torsional_spring:k=0.03")
+    ap.add_argument("--fix", nargs="+", default=[], type=_fixed, metavar="NAME=VALUE",
+                    help="parameters fixed in every model discover fits, e.g. a_yaw=1 (the tilt "
+                         "offered at its derived value)")
     ap.add_argument("--base-jitter", type=float, default=0.0, metavar="S",
                     help="log-normal spread of the base parameters around the rig fit (0: the fit)")
     ap.add_argument("--hidden-omega-s", type=float, default=None, metavar="W",

@@ -557,6 +557,22 @@ def test_a_run_s_prior_changes_reach_the_models_that_have_the_parameter():
         pytest.approx(0.5 * np.log(n_fit)))  # fmt: skip
 
 
+def test_an_effect_parameter_the_run_fixes_is_reported_at_its_value():
+    """discovery.json's ``parameters`` of the named effect: a sampled parameter as the
+    posterior summary has it; one the run's priors fix at its value with a zero-width
+    interval and ``fixed``, not left out (the tilt named at ``a = 1``)."""
+    from heli_uq.discovery.report import _effect_parameters
+    from heli_uq.model.prior import Prior
+
+    summary = {"F_c_yaw": {"mean": 0.02, "sd": 0.005, "ci95": [0.01, 0.03], "unit": "N m", "bare": "F_c"}}
+    fix = (("a_yaw", Prior("fixed", 1.0)), ("omega_psi0", Prior("fixed", 0.0)))
+    assert _effect_parameters(summary, "yaw:coulomb_friction", fix) == {
+        "F_c": {"mean": 0.02, "ci95": [0.01, 0.03], "unit": "N m"}}
+    assert _effect_parameters(summary, "yaw:thrust_tilt", fix) == {
+        "a": {"mean": 1.0, "ci95": [1.0, 1.0], "unit": "1", "fixed": True}}
+    assert _effect_parameters(summary, "yaw:thrust_tilt") == {}  # free but not sampled: absent
+
+
 def test_the_store_keeps_each_task_of_a_model_for_a_rerun(tmp_path):
     """A model fitted twice (before and after a restart) is reused for both tasks; the
     latest fit is its ``result`` (what ``heli-uq design`` reads)."""

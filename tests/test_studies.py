@@ -90,3 +90,25 @@ def test_a_hidden_friction_can_follow_another_smoothing_than_the_fitted_one():
     # same noise draws: the sharper law (less creep where the yaw sticks) moves the yaw by
     # more than one encoder count within 8 s (measured: two counts)
     assert np.max(np.abs(sharp.y[:, 1] - plain.y[:, 1])) > ENCODER_QUANTUM
+
+
+def test_a_hidden_tilt_is_a_case_outside_the_table_and_fix_parses():
+    """``--cases yaw:thrust_tilt`` hides the derived ``cos theta`` at ``a = 1`` (outside the
+    effects table, never a default case); it weakens the yaw torques where the pitch is off
+    level, so the yaw leaves the null record's (same inputs and noise) by many encoder
+    counts within 8 s.  ``--fix NAME=VALUE`` parses to the pair discover's priors take."""
+    import argparse
+
+    from heli_uq.simulation.synthetic import ENCODER_QUANTUM
+    from studies.discovery_confusion import EXTRA_CASES, _fixed, make_record
+
+    assert "yaw:thrust_tilt" in EXTRA_CASES
+    tilted, truth, model = make_record("yaw:thrust_tilt", "rig_steps", 3, 8.0)
+    plain, truth_plain, _ = make_record("none", "rig_steps", 3, 8.0)
+    assert [t.kind for t in model.effects] == ["thrust_tilt"] and truth["a_yaw"] == 1.0
+    assert {k: v for k, v in truth.items() if k != "a_yaw"} == truth_plain
+    assert np.array_equal(tilted.u, plain.u)
+    assert np.max(np.abs(tilted.y[:, 1] - plain.y[:, 1])) > 10 * ENCODER_QUANTUM
+    assert _fixed("a_yaw=1") == ("a_yaw", 1.0)
+    with pytest.raises(argparse.ArgumentTypeError, match="expected NAME=VALUE"):
+        _fixed("a_yaw")

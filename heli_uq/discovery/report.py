@@ -97,11 +97,19 @@ def _candidate_rows(rows: list[dict]) -> list[dict]:
     return out
 
 
-def _effect_parameters(summary_params: dict, effect: str) -> dict:
-    """``{bare name: {mean, ci95, unit}}`` of the parameters of ``effect`` (``"axis:kind"``)."""
-    names = [par.name for par in build_model([effect]).effects[0].parameters()]
-    return {summary_params[n]["bare"]: {k: summary_params[n][k] for k in ("mean", "ci95", "unit")}
-            for n in names if n in summary_params}  # fmt: skip
+def _effect_parameters(summary_params: dict, effect: str, priors=()) -> dict:
+    """``{bare name: {mean, ci95, unit}}`` of the parameters of ``effect`` (``"axis:kind"``);
+    one the run's ``priors`` fix (``(name, Prior)`` pairs) is reported at its value, with
+    ``"fixed": true`` and a zero-width interval (the tilt offered at ``a = 1``)."""
+    fixed = {name: prior.a for name, prior in priors if prior.kind == "fixed"}
+    out = {}
+    for par in build_model([effect]).effects[0].parameters():
+        if par.name in summary_params:
+            out[par.bare] = {k: summary_params[par.name][k] for k in ("mean", "ci95", "unit")}
+        elif par.name in fixed:
+            value = float(fixed[par.name])
+            out[par.bare] = {"mean": value, "ci95": [value, value], "unit": par.unit, "fixed": True}
+    return out
 
 
 def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_fit, where, ranking,
@@ -147,12 +155,12 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
     result = {
         "effect": first.split(":")[1] if first else "none",
         "axis": first.split(":")[0] if first else None,
-        "parameters": _effect_parameters(params, first) if first else {},
+        "parameters": _effect_parameters(params, first, priors) if first else {},
         "gap_before": gap_before, "gap_after": gap_after,
         "candidates": _candidate_rows(rows),
         "decision": _decision(added, rows, steps, gap_before, gap_after),
         "added": [{"effect": e.split(":")[1], "axis": e.split(":")[0],
-                   "parameters": _effect_parameters(params, e)} for e in added],
+                   "parameters": _effect_parameters(params, e, priors)} for e in added],
     }  # fmt: skip
     assert tuple(result) == DISCOVERY_KEYS
     atomic_write_text(out / "discovery.json", json.dumps(result, indent=1))

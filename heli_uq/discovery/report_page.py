@@ -197,8 +197,9 @@ def report_page(result, where, ranking, steps, base, budget, fit_window, score_w
         lines += ["", "Added parameters (NUTS posterior mean, 95 % interval):", ""]
         for a in result["added"]:
             for name, p in a["parameters"].items():
-                lines.append(f"- {a['effect']} ({a['axis']}): {name} = {p['mean']:.4g} "
-                             f"[{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}] {p['unit']}")  # fmt: skip
+                value = (f"{p['mean']:.4g} {p['unit']}, fixed by the run's priors" if p.get("fixed") else
+                         f"{p['mean']:.4g} [{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}] {p['unit']}")
+                lines.append(f"- {a['effect']} ({a['axis']}): {name} = {value}")
         worse = gap_warnings(result["gap_before"], result["gap_after"])
         if worse:
             lines += ["", "**Warning: the gap did not shrink.**", ""] + [f"- {w}" for w in worse]

@@ -571,6 +571,13 @@ def test_an_effect_parameter_the_run_fixes_is_reported_at_its_value():
     assert _effect_parameters(summary, "yaw:thrust_tilt", fix) == {
         "a": {"mean": 1.0, "ci95": [1.0, 1.0], "unit": "1", "fixed": True}}
     assert _effect_parameters(summary, "yaw:thrust_tilt") == {}  # free but not sampled: absent
+    # report.md's lines
+    from heli_uq.discovery.report_page import parameter_text
+
+    assert parameter_text("F_c", _effect_parameters(summary, "yaw:coulomb_friction")["F_c"]) == (
+        "F_c = 0.02 [0.01, 0.03] N m")
+    tilt = _effect_parameters(summary, "yaw:thrust_tilt", fix)["a"]
+    assert parameter_text("a", tilt) == "a = 1, fixed by the run's priors"
 
 
 def test_the_store_keeps_each_task_of_a_model_for_a_rerun(tmp_path):

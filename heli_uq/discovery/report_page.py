@@ -12,11 +12,20 @@ import numpy as np
 from heli_uq.data import unseen_inputs
 from heli_uq.discovery.score import GAP_KEYS
 
-__all__ = ["report_page", "gap_warnings", "CLOSER_V_FRACTION"]
+__all__ = ["report_page", "gap_warnings", "parameter_text", "CLOSER_V_FRACTION"]
 
 #: A first-step candidate whose held-out V is below this fraction of the base model's but
 #: whose held-out score is negative is named in the report (closer, yet overconfident).
 CLOSER_V_FRACTION = 0.8
+
+
+def parameter_text(name: str, p: dict) -> str:
+    """``"F_c = 0.0207 [0.0061, 0.043] N m"`` from a ``discovery.json`` parameter entry; a
+    parameter the run's priors fix is given at its value and said to be fixed."""
+    unit = "" if p["unit"] == "1" else f" {p['unit']}"  # dimensionless: no unit
+    if p.get("fixed"):
+        return f"{name} = {p['mean']:.4g}{unit}, fixed by the run's priors"
+    return f"{name} = {p['mean']:.4g} [{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}]{unit}"
 
 
 def gap_warnings(before: dict, after: dict) -> list[str]:
@@ -196,10 +205,8 @@ def report_page(result, where, ranking, steps, base, budget, fit_window, score_w
     if result["added"]:
         lines += ["", "Added parameters (NUTS posterior mean, 95 % interval):", ""]
         for a in result["added"]:
-            for name, p in a["parameters"].items():
-                value = (f"{p['mean']:.4g} {p['unit']}, fixed by the run's priors" if p.get("fixed") else
-                         f"{p['mean']:.4g} [{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}] {p['unit']}")
-                lines.append(f"- {a['effect']} ({a['axis']}): {name} = {value}")
+            lines += [f"- {a['effect']} ({a['axis']}): {parameter_text(name, p)}"
+                      for name, p in a["parameters"].items()]
         worse = gap_warnings(result["gap_before"], result["gap_after"])
         if worse:
             lines += ["", "**Warning: the gap did not shrink.**", ""] + [f"- {w}" for w in worse]

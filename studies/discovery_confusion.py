@@ -48,7 +48,9 @@ from _study import RESULTS, append_jsonl, provenance  # noqa: E402
 
 from heli_uq.data import load_data  # noqa: E402
 from heli_uq.discovery import discover  # noqa: E402
+from heli_uq.errors import ParameterError  # noqa: E402
 from heli_uq.model import AXES, EFFECTS, RIG_FIT, RIG_FIT_X0, build_model  # noqa: E402
+from heli_uq.probability.priors import parse_prior_option  # noqa: E402
 from heli_uq.simulation import reference_solve, synthetic_experiment  # noqa: E402
 from heli_uq.simulation.synthetic import ENCODER_QUANTUM, RIG_RANGES, step_inputs  # noqa: E402
 
@@ -224,12 +226,15 @@ def hidden_value(text: str):
 
 
 def _fixed(text: str) -> tuple[str, float]:
-    """``"NAME=VALUE"`` -> ``(name, value)``: a parameter fixed in every model discover fits."""
-    name, _, value = text.partition("=")
+    """``"NAME=VALUE"`` -> ``(name, value)``: a parameter fixed in every model discover fits
+    (parsed as ``heli-uq discover --fix``)."""
     try:
-        return name.strip(), float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected NAME=VALUE, e.g. a_yaw=1") from None
+        name, prior = parse_prior_option(text, option="--fix")
+    except ParameterError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    if prior.kind != "fixed":
+        raise argparse.ArgumentTypeError(f"--fix {text!r}: expected NAME=VALUE, e.g. a_yaw=1")
+    return name, prior.a
 
 
 def _hold(text: str) -> tuple[float, float]:

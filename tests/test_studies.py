@@ -110,5 +110,6 @@ def test_a_hidden_tilt_is_a_case_outside_the_table_and_fix_parses():
     assert np.array_equal(tilted.u, plain.u)
     assert np.max(np.abs(tilted.y[:, 1] - plain.y[:, 1])) > 10 * ENCODER_QUANTUM
     assert _fixed("a_yaw=1") == ("a_yaw", 1.0)
-    with pytest.raises(argparse.ArgumentTypeError, match="expected NAME=VALUE"):
-        _fixed("a_yaw")
+    for bad in ("a_yaw", "a_yaw=uniform:0:1"):  # no value; a prior, not a fixed value
+        with pytest.raises(argparse.ArgumentTypeError, match="NAME=VALUE"):
+            _fixed(bad)

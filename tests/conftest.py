@@ -12,10 +12,12 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 # Many tests compile the same programs (one NUTS kernel per run, a resumed run, the CLI):
 # a persistent XLA cache shared by the test processes compiles each once.  Entries are
-# keyed by the program, JAX version and flags, so a stale entry is never used.
+# keyed by the program, JAX version and flags, so a stale entry is never used.  Every
+# program is kept, however fast it compiled: most compile in well under a second, thousands
+# of them, and tests, workers and the CLI's subprocesses compile many of them again.
 jax.config.update("jax_compilation_cache_dir",
                   str(pathlib.Path(__file__).resolve().parents[1] / ".pytest_cache" / "jax"))
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 REPO = pathlib.Path(__file__).resolve().parents[1]

@@ -17,6 +17,7 @@ import pytest
 from heli_uq.cli import main
 from heli_uq.data import EXPERIMENTAL_FILENAME, Experiment, read_record
 from heli_uq.errors import ParameterError
+from heli_uq.executor import MIN_COMPILE_ENV
 from heli_uq.model import TABLE2
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -501,9 +502,12 @@ def test_init_is_the_first_map_start_and_a_bad_one_is_one_line(tmp_path, capsys,
 
 def test_commands_keep_compiled_programs_on_disk(tmp_path):
     """A command writes its compiled programs to ``~/.cache/heli_uq/jax`` (here a temporary
-    home), or to ``JAX_COMPILATION_CACHE_DIR`` when that is set; a second run reads them."""
-    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
-    env.update(HOME=str(tmp_path / "home"), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
+    home), or to ``JAX_COMPILATION_CACHE_DIR`` when that is set; a second run reads them.
+    No minimum compile time is set here: the package keeps the fast-compiling programs
+    (under JAX's default of 1 s none of this command's are written)."""
+    drop = ("JAX_COMPILATION_CACHE_DIR", MIN_COMPILE_ENV)
+    env = {k: v for k, v in os.environ.items() if k not in drop}
+    env.update(HOME=str(tmp_path / "home"))
     cache = tmp_path / "home" / ".cache" / "heli_uq" / "jax"
     command = [sys.executable, "-m", "heli_uq.cli", "simulate", "--inputs", "table3", "--quiet"]
     done = subprocess.run([*command, "--out", str(tmp_path / "a")], env=env, capture_output=True,
@@ -520,3 +524,30 @@ def test_commands_keep_compiled_programs_on_disk(tmp_path):
                           env={**env, "JAX_COMPILATION_CACHE_DIR": str(other)}, timeout=300)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert any(other.iterdir()) and {p.name for p in cache.iterdir()} == entries
+
+
+def test_the_cache_keeps_a_minimum_compile_time_the_user_set(monkeypatch):
+    """The package's minimum compile time for cached programs (0 s) applies only where the
+    user set none: a value in the environment, or one this process's JAX already has, is
+    kept (and exported for spawned workers as it was)."""
+    import jax
+
+    from heli_uq.executor import MIN_COMPILE_SECONDS, use_compilation_cache
+
+    option = "jax_persistent_cache_min_compile_time_secs"
+    before = getattr(jax.config, option)
+    try:
+        for env, configured, expected in ((None, 1.0, MIN_COMPILE_SECONDS), ("2.5", 1.0, 1.0),
+                                          (None, 3.0, 3.0)):  # fmt: skip
+            if env is None:
+                monkeypatch.delenv(MIN_COMPILE_ENV, raising=False)
+            else:
+                monkeypatch.setenv(MIN_COMPILE_ENV, env)
+            jax.config.update(option, configured)
+            use_compilation_cache()
+            assert getattr(jax.config, option) == expected, (env, configured)
+            assert os.environ.get(MIN_COMPILE_ENV) == (env or (repr(MIN_COMPILE_SECONDS) if configured == 1.0
+                                                               else None)), (env, configured)  # fmt: skip
+    finally:
+        jax.config.update(option, before)
+

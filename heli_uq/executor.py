@@ -46,10 +46,13 @@ CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
 #: programs (thousands, most under a second each, which a rerun compiles again):
 #: :func:`use_compilation_cache` sets :data:`MIN_COMPILE_SECONDS` unless the user set it.
 MIN_COMPILE_ENV = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
-#: Seconds of compilation from which a program is cached: every program (measured on a
-#: 1 s record, ``heli-uq sample`` 2 x (50 + 50): a rerun with a warm cache took 17.7 s at
-#: JAX's 1 s, 12.8 s at 0; the cold run 31 s either way; 153 entries, not 4).
+#: Seconds of compilation from which a program is cached: every program.  Measured by
+#: ``studies/bench_cache.py`` on a second record of the length of the first: ``heli-uq
+#: sample`` (1 s record) 18.5 s at JAX's 1 s, 14.5 s at 0 (153 entries, not 4); ``discover``
+#: (30 s record, quick budget) 49.1 s and 35.7 s; the first runs take the same time.
 MIN_COMPILE_SECONDS = 0.0
+#: JAX's own default of that minimum [s]: a process whose JAX has another value set it.
+JAX_DEFAULT_MIN_COMPILE_SECONDS = 1.0
 #: How long :func:`run_tasks` tries to reach a scheduler given by its address.
 CONNECT_TIMEOUT = "10s"
 #: Start of the message (logger ``distributed.worker``, with a traceback) of a worker
@@ -113,7 +116,8 @@ def use_compilation_cache() -> str:
     if not configured:
         jax.config.update("jax_compilation_cache_dir", path)
     # a value set in the environment, or in this process's JAX (not its default), is kept
-    if MIN_COMPILE_ENV not in os.environ and jax.config.jax_persistent_cache_min_compile_time_secs == 1.0:
+    unset = jax.config.jax_persistent_cache_min_compile_time_secs == JAX_DEFAULT_MIN_COMPILE_SECONDS
+    if MIN_COMPILE_ENV not in os.environ and unset:
         os.environ[MIN_COMPILE_ENV] = repr(MIN_COMPILE_SECONDS)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
     return path

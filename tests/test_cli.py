@@ -550,4 +550,3 @@ def test_the_cache_keeps_a_minimum_compile_time_the_user_set(monkeypatch):
                                                                else None)), (env, configured)  # fmt: skip
     finally:
         jax.config.update(option, before)
-

@@ -18,6 +18,7 @@ from heli_uq.calibration.ranks import (
     thinned_ranks,
 )
 from heli_uq.errors import ParameterError
+from heli_uq.executor import MIN_COMPILE_ENV
 from heli_uq.probability.priors import X0_ANGLE_SD
 
 #: The smallest useful replicate: a short record, one short chain, 19 ranked draws (not
@@ -68,7 +69,7 @@ def test_dask_and_serial_give_the_same_replicates(serial_run, tmp_path, monkeypa
     settings, not on the process or on what ran before it."""
     # the workers share this process's persistent compilation cache (conftest.py)
     monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", jax.config.jax_compilation_cache_dir)
-    monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+    monkeypatch.setenv(MIN_COMPILE_ENV, "0")
     monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
     _, serial = serial_run
     dask = run_sbc(tmp_path, TINY, [DASK_REPLICATE], scheduler="local", workers=1)

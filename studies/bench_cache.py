@@ -36,6 +36,7 @@ import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from _study import RESULTS, append_jsonl, provenance  # noqa: E402
+from discovery_confusion import make_record  # noqa: E402
 
 import heli_uq  # noqa: E402,F401  (first: its JAX settings)
 from heli_uq.executor import CACHE_ENV, MIN_COMPILE_ENV  # noqa: E402
@@ -45,7 +46,8 @@ from heli_uq.simulation import synthetic_experiment  # noqa: E402
 MINIMA = (1.0, 0.0)
 #: Record length [s] and noise [rad] of ``sample``'s records (1 s, as in the CLI tests).
 SAMPLE_SECONDS, SAMPLE_NOISE = 1.0, (0.003, 0.003)
-#: ``discover``'s records: 30 s of the rig-like staircase, split 21 s / 9 s (as tests/test_discover.py).
+#: ``discover``'s records: the confusion study's null records (``make_record``), 30 s of the
+#: rig-like staircase, split 21 s / 9 s (as tests/test_discover.py).
 DISCOVER_SECONDS, DISCOVER_SPLIT = 30.0, 21.0
 #: The SBC run: 3 replicates of 2 s records, one chain of 100 + 50, serial.
 SBC_ARGS = ("--replicates", "3", "--duration", "2", "--chains", "1", "--warmup", "100", "--draws", "50",
@@ -59,13 +61,8 @@ def _records(command: str, work: pathlib.Path) -> list[str]:
     for seed in (1, 2):
         if command == "sample":
             rec = synthetic_experiment(duration=SAMPLE_SECONDS, seed=seed, noise_std=SAMPLE_NOISE)
-        else:
-            from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model
-            from heli_uq.simulation.synthetic import ENCODER_QUANTUM
-
-            rec = synthetic_experiment(RIG_FIT, RIG_FIT_X0, duration=DISCOVER_SECONDS, inputs="rig_steps",
-                                       noise_std=(0.003, 0.008), seed=seed, model=build_model([]),
-                                       quantum=ENCODER_QUANTUM)  # fmt: skip
+        else:  # the confusion study's null record: rig-like staircase, noise and quantisation
+            rec, _, _ = make_record("none", "rig_steps", seed, DISCOVER_SECONDS)
         paths.append(str(rec.to_csv(work / f"{command}_{seed}.csv")))
     return paths
 

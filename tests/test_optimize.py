@@ -350,3 +350,35 @@ def test_tail_substeps_cover_the_laplace_draws_of_a_friction_posterior():
     h = problem.dt / start.problem.substeps
     assert start.problem.substeps > 1
     assert np.max(rates) * h < RK4_STABILITY, (np.max(rates), start.problem.substeps)
+
+
+def test_a_warm_start_with_an_effect_at_its_no_effect_default_is_used(tmp_path):
+    """``sample --init`` with a fit of a smaller model read the file completed with the
+    model's defaults: the new effect's "no effect" level 0 lies on the bound of its log
+    coordinate, the start's least-squares cost was infinite and the user's start was
+    dropped in silence (2026-11-30, a GP torque on the rig's tilt model).  Such a value now
+    takes the model's start value, and the CLI reads only the file's names."""
+    import json
+    import math
+
+    from heli_uq.inference.density import log_density_setup
+    from heli_uq.inference.start import map_starts, startable
+    from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model, load_params_json
+    from heli_uq.probability import make_problem
+    from heli_uq.simulation import synthetic_experiment
+
+    rec = synthetic_experiment(RIG_FIT, RIG_FIT_X0, duration=3.0, inputs="rig_steps", seed=2,
+                               noise_std=(0.003, 0.008))  # fmt: skip
+    model = build_model(["yaw:quadratic_drag"])
+    problem = make_problem(rec, model=model, error="iid")
+    path = tmp_path / "fit.json"
+    path.write_text(json.dumps(RIG_FIT))
+    completed = load_params_json(path, model)
+    assert completed["c_yaw"] == 0.0  # the default: no drag, on the bound of c's support
+    assert load_params_json(path, model, complete=False) == {k: float(v) for k, v in RIG_FIT.items()}
+    kept = startable(problem, completed)
+    assert "c_yaw" not in kept and all(kept[k] == v for k, v in RIG_FIT.items())
+    costs = []
+    map_starts(problem, log_density_setup(problem), 1, guesses=(completed,),
+               log=lambda line: costs.append(float(line.split("cost ")[1].split()[0])))  # fmt: skip
+    assert len(costs) == 1 and math.isfinite(costs[0]), costs

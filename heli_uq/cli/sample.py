@@ -44,7 +44,7 @@ def cmd_sample(args) -> int:
         numpyro.set_host_device_count(args.chains)
     model = model_from_args(args)
     priors = priors_from_args(args, model)
-    guesses = [] if args.init is None else [load_params_json(args.init, model)]
+    guesses = [] if args.init is None else [load_params_json(args.init, model, complete=False)]
     record = load_data(args.data)
     if args.window is not None:
         record = record.window(*parse_window(args.window))
@@ -205,7 +205,7 @@ def add_parser(subparsers):
                    help="held-out test window [s], after the training window")
     p.add_argument("--init", metavar="FILE.json", default=None,
                    help="the first MAP start: parameter values as 'simulate --params' reads them"
-                        " (missing names take the model's defaults), e.g. a fit of a smaller"
+                        " (missing names take the model's start values), e.g. a fit of a smaller"
                         " model the new one nests, whose own starts may land in a worse basin;"
                         " the initial state is fitted from the record as always")
     p.add_argument("--chains", type=int, default=4,

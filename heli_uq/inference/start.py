@@ -45,8 +45,8 @@ from heli_uq.probability.problem import Problem
 from heli_uq.simulation.solver import default_substeps
 from heli_uq.simulation.stiffness import stiffness_rates, substeps_covering
 
-__all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "initial_draws", "whitening",
-           "TAIL_DRAWS", "MAX_SUBSTEPS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
+__all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "startable", "initial_draws",
+           "whitening", "TAIL_DRAWS", "MAX_SUBSTEPS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
            "NETWORK_MAP_DECREMENT_MAX", "PoorBasin"]  # fmt: skip
 
 #: Laplace draws (seeded) whose stiffness the substeps must cover (their maximum is about
@@ -108,6 +108,23 @@ def _alternative_values(problem: Problem) -> dict:
     return out
 
 
+def startable(problem: Problem, guess: dict) -> dict:
+    """The entries of ``guess`` (physical values by name) a fit can start from: names of the
+    model's parameters, each free one strictly inside its support.  A value on a bound (an
+    effect's "no effect" level 0 of a friction or an amplitude, whose sampling coordinate is
+    its logarithm) is left out, so the model's start value takes its place: kept, it made
+    the start's least-squares cost infinite and the start was dropped (a warm start from a
+    fit of a smaller model with the new effect at its default, 2026-11-30)."""
+    pars = {p.name: p for p in problem.model.parameters()}
+    free = set(problem.coords.free)
+
+    def inside(name, value):
+        lo, hi = pars[name].interval
+        return name not in free or pars[name].support == "real" or lo < value < hi
+
+    return {k: float(v) for k, v in guess.items() if k in pars and inside(k, float(v))}
+
+
 def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, guesses=(), *,
                log=None) -> list:  # fmt: skip
     """Starting points (flat vectors) of the MAP, each refined by :func:`least_squares_fit`.
@@ -116,7 +133,8 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
     (so the least-squares weighting of pitch against yaw is the MAP's, and the Newton polish
     starts next to the optimum).
     Guesses: ``guesses`` (dicts of physical values, e.g. a fit of a smaller model; missing
-    names take the model's start values), then the model's start values (Table 1 for the
+    names, and values on a bound of a free parameter's support (:func:`startable`), take
+    the model's start values), then the model's start values (Table 1 for the
     mechanics), its defaults where valid (Table 2) and ``n - 2`` perturbations; for a
     model whose terms declare a start grid, one more from :func:`grid_start`.  After the
     least-squares stage the residual scale starts at the residual RMS and the AR(1)
@@ -136,8 +154,7 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
     linear = [p.name for p in problem.model.parameters() if p.interval[0] < 0]  # may be <= 0
     out = []
     t0 = time.perf_counter()
-    warm = [on_scale({**start, **{k: float(v) for k, v in g.items() if k in start}}, fixed)
-            for g in guesses][:n]  # fmt: skip
+    warm = [on_scale({**start, **startable(problem, g)}, fixed) for g in guesses][:n]
     starts = warm + start_parameters(coords.free, base, n, seed, alternative=alternative,
                                      linear=linear)[: max(n - len(warm), 0)]  # fmt: skip
     screened = grid_start(problem, starts[0], log=log)

@@ -41,16 +41,22 @@ RIG_FIT_X0: tuple[float, float, float, float] = tuple(_RIG["x0"])
 TABLE3_X0: tuple[float, float, float, float] = (math.pi / 4, 0.0, -0.1, 0.1)
 
 
-def load_params_json(path: str | os.PathLike, model=None) -> dict[str, float]:
+def load_params_json(path: str | os.PathLike, model=None, *, complete: bool = True) -> dict[str, float]:
     """Read a flat JSON object ``{"m": 0.72, "F_c_yaw": 0.004, ...}`` of parameter values.
 
-    Missing names take the model's defaults (Table 2 for the mechanics).
+    Missing names take the model's defaults (Table 2 for the mechanics, "no effect" for
+    effects), unless ``complete`` is False.
 
     Parameters
     ----------
     path : path
     model : HeliModel, optional
         The model whose parameters the file sets (default: the paper's model).
+    complete : bool
+        True (default): every parameter of the model, for a simulation.  False: the file's
+        names only (checked all the same), e.g. a MAP start, whose missing names take the
+        model's start values: an effect's "no effect" default can lie on a bound of its
+        support (a friction level of 0), where a fit cannot start.
 
     Raises
     ------
@@ -65,7 +71,7 @@ def load_params_json(path: str | os.PathLike, model=None) -> dict[str, float]:
     path = os.fspath(path)
     raw = read_json_object(path, "parameter")
     full = model.complete(raw, where=path)
-    return {k: float(v) for k, v in full.items()}
+    return {k: float(v) for k, v in full.items() if complete or k in raw}
 
 
 def parse_x0(text: str) -> tuple[float, float, float, float]:

@@ -161,11 +161,13 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
     starts += [screened] if screened is not None else []
     for k, params in enumerate(starts):
         z, x0, cost = (np.asarray(a) for a in fit(coords.from_physical(params), x0_guess(problem)))
+        resid = np.asarray(sim(jnp.asarray(z), jnp.asarray(x0)))[:, :2] - problem.y[: problem.n_train]
+        usable = bool(np.all(np.isfinite(resid)))
         if log is not None:
             log(f"MAP start {k + 1}/{len(starts)}: least-squares cost {float(cost):.6g} "
-                f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
-        resid = np.asarray(sim(jnp.asarray(z), jnp.asarray(x0)))[:, :2] - problem.y[: problem.n_train]
-        if not np.all(np.isfinite(resid)):
+                f"({time.perf_counter() - t0:.0f} s)"
+                + ("" if usable else "; the model does not simulate from it: skipped"))  # fmt: skip
+        if not usable:
             continue
         # again with the residual scales of this fit (the MAP's weighting of theta vs psi)
         sigma = np.maximum(np.sqrt(np.mean(resid**2, axis=0)), 1e-4)

@@ -100,9 +100,8 @@ def _inside_support(model, values: dict) -> dict:
     out = {}
     for par in model.parameters():
         if par.name in values and np.isfinite(values[par.name]):
-            lo, hi = par.interval
-            v = float(np.clip(values[par.name], lo, hi))
-            if (lo < v < hi) or par.support == "real":
+            v = float(np.clip(values[par.name], *par.interval))
+            if par.inside(v):
                 out[par.name] = v
     return out
 
@@ -143,9 +142,7 @@ def off_start(current_map: dict, effects: list[str]) -> dict:
     probe = probe_values(model, current_map, [p.name for p in new])
     out = dict(current_map)
     for par in new:
-        lo, hi = par.interval
-        out[par.name] = (par.default if lo < par.default < hi or par.support == "real"
-                         else OFF_FRACTION * probe[par.name])  # fmt: skip
+        out[par.name] = par.default if par.inside(par.default) else OFF_FRACTION * probe[par.name]
     return out
 
 

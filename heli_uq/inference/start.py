@@ -117,12 +117,8 @@ def startable(problem: Problem, guess: dict) -> dict:
     fit of a smaller model with the new effect at its default, 2026-11-30)."""
     pars = {p.name: p for p in problem.model.parameters()}
     free = set(problem.coords.free)
-
-    def inside(name, value):
-        lo, hi = pars[name].interval
-        return name not in free or pars[name].support == "real" or lo < value < hi
-
-    return {k: float(v) for k, v in guess.items() if k in pars and inside(k, float(v))}
+    return {k: float(v) for k, v in guess.items()
+            if k in pars and (k not in free or pars[k].inside(float(v)))}  # fmt: skip
 
 
 def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, guesses=(), *,

@@ -97,6 +97,12 @@ class Parameter:
         return {"positive": (0.0, math.inf), "nonnegative": (0.0, math.inf),
                 "real": (-math.inf, math.inf)}[self.support]  # fmt: skip
 
+    def inside(self, value: float) -> bool:
+        """``value`` lies strictly inside the support, where a fit can start (on a bound of a
+        nonnegative or bounded parameter its sampling coordinate is infinite)."""
+        lo, hi = self.interval
+        return lo < value < hi
+
     def describe_support(self) -> str:
         if isinstance(self.support, tuple):
             unit = "" if self.unit == "1" else f" {self.unit}"

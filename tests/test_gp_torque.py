@@ -1,12 +1,15 @@
 """The Gaussian-process torque (model discrepancy over the voltages): its values at the
-voltage pairs against the kernel written out in numpy, its prior covariance, the projection
-that leaves the linear gains to the mechanics, its gradient against finite differences,
-the pairs of a test window it holds, and its description round trip."""
+voltage pairs against the kernel written out in numpy, its prior covariance in both forms
+(whitened; centred at the training pairs), the centred form's joint prior against scipy and
+in the sampler's log prior, the projection that leaves the linear gains to the mechanics,
+its gradient against finite differences, the pairs of a test window it holds, and its
+description round trip."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.stats
 
 from heli_uq.errors import ParameterError
 from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model, model_from_description
@@ -24,6 +27,10 @@ LENGTH = 0.15  # kernel length scale of these tests [V]
 #: A test-window pair's value may move the training window's angles by at most this [rad]:
 #: between the pairs the interpolant carries the nugget (``JITTER``), ~1e-6 rad here.
 NUGGET_LEAK_RAD = 1e-5
+#: Prior draws for the covariance check, and its tolerance: the sd of a sample covariance
+#: entry of unit-variance normals is at most sqrt(2 / DRAWS) = 0.014; 5 of them.
+DRAWS = 20000
+COV_ATOL = 5 * np.sqrt(2 / DRAWS)
 
 
 def _record(seconds=60.0, seed=3):
@@ -40,22 +47,31 @@ def _numpy_kernel(a, b):
     return out
 
 
-def _problem(project="1,u", train=(0.0, 45.0), test=(45.0, 60.0)):
+def _problem(project="1,u", form="centred", train=(0.0, 45.0), test=(45.0, 60.0)):
     rec = _record()
-    item = {"effect": "gp_torque", "axis": "yaw", "length_scale": LENGTH, "project": project}
+    item = {"effect": "gp_torque", "axis": "yaw", "length_scale": LENGTH, "project": project, "form": form}
     model = build_model(["yaw:torque_offset", item] if project == "1,u" else [item])
     return rec, make_problem(rec, train, test, model=model, error="iid")
 
 
 def _values(model, seed=0, tau=0.01):
+    """Rig-fit mechanics, whitened values from N(0, 1), centred ones from their joint prior."""
     rng = np.random.default_rng(seed)
     z = {n: rng.normal() for n in model.names if n.startswith("gp_z_")}
-    return model.complete({**RIG_FIT, **z, "gp_tau_yaw": tau})
+    return {k: float(v) for k, v in model.draw_joint(model.complete({**RIG_FIT, **z, "gp_tau_yaw": tau}),
+                                                     rng).items()}  # fmt: skip
 
 
-@pytest.fixture(scope="module", params=["1,u", "none"])
+def _value_names(term):
+    """The parameters that set ``f`` at the reference pairs, in pair order."""
+    t = len(term.joint_names())
+    return [term.name(f"gp_f_{j}" if j < t else f"gp_z_{j}") for j in range(term.n_pairs)]
+
+
+@pytest.fixture(scope="module", params=[("1,u", "centred"), ("none", "centred"), ("1,u", "whitened")],
+                ids=["1,u-centred", "none-centred", "1,u-whitened"])
 def problem(request):
-    return _problem(request.param)
+    return _problem(*request.param)
 
 
 def test_the_span_pairs_are_the_reference_and_get_standard_normal_priors(problem):
@@ -69,10 +85,16 @@ def test_the_span_pairs_are_the_reference_and_get_standard_normal_priors(problem
     np.testing.assert_array_equal(np.unique(reference, axis=0), span_pairs)
     assert len(reference) == len(span_pairs)
     assert len(span_pairs) > len(train_pairs), "the test window must hold pairs the training window does not"
-    names = [f"gp_z_{j}_yaw" for j in range(len(span_pairs))]
-    assert [n for n in pr.model.names if n.startswith("gp_z_")] == names
-    assert all(pr.priors.params[n].describe() == "normal(0, 1)" for n in names)
+    centred = len(train_pairs) if term.form == "centred" else 0
+    assert term.n_fitted == len(train_pairs)
+    values = [n for n in pr.model.names if n.startswith(("gp_f_", "gp_z_"))]
+    expected = [f"gp_f_{j}_yaw" for j in range(centred)]
+    expected += [f"gp_z_{j}_yaw" for j in range(centred, len(span_pairs))]
+    assert values == expected
+    assert all(pr.priors.params[n].describe() == "normal(0, 1)" for n in values[centred:])
+    assert list(pr.model.joint_names) == values[:centred]
     assert "gp_tau_yaw" in pr.model.scale_names
+    assert all(n in pr.model.scale_names for n in values[:centred])  # torques: the common scale holds
 
 
 def test_a_new_pairs_value_leaves_the_training_window_unchanged(problem):
@@ -95,26 +117,64 @@ def test_values_at_the_pairs_follow_the_kernel(problem):
     _, pr = problem
     term = pr.model.effects[-1]
     pairs = np.asarray(term.reference)
+    names = _value_names(term)
     p = _values(pr.model)
-    z = np.array([p[f"gp_z_{j}_yaw"] for j in range(len(pairs))])
-    gram = _numpy_kernel(pairs, pairs)
-    lower = np.linalg.cholesky(gram + JITTER * np.eye(len(pairs)))
+    v = np.array([p[n] for n in names])
+    gram = _numpy_kernel(pairs, pairs) + JITTER * np.eye(len(pairs))
     prepared = pr.model.prepare(p)[1]
     f = np.asarray(term.values_at(prepared, jnp.asarray(pairs)))
-    # f(P) = tau L z (up to the nugget's tau * JITTER * alpha)
-    np.testing.assert_allclose(f, 0.01 * lower @ z, atol=1e-5 * 0.01 * np.abs(z).max())
-    # the prior covariance of f(P): the Jacobian d f / d z is tau L, so J J^T = tau^2 (K + nugget)
-    jac = jax.jacfwd(lambda zz: term.values_at(
-        term_params(pr.model, p, zz), jnp.asarray(pairs)))(jnp.asarray(z))  # fmt: skip
-    prior_cov = 0.01**2 * (gram + JITTER * np.eye(len(pairs)))
-    np.testing.assert_allclose(np.asarray(jac) @ np.asarray(jac).T, prior_cov, atol=1e-4 * 1e-5)
+    t = len(term.joint_names())
+    if t:  # centred: the fitted pairs' values are the parameters (up to the nugget's tau J alpha)
+        np.testing.assert_allclose(f[:t], v[:t], atol=1e-4 * 0.01)
+    else:  # whitened: f(P) = tau L z
+        np.testing.assert_allclose(f, 0.01 * np.linalg.cholesky(gram) @ v, atol=1e-5 * 0.01 * np.abs(v).max())
+    # f(P) is linear in the values: f = B v, whose prior covariance is blockdiag(tau^2 K_tt, I)
+    # (centred) or I (whitened); B cov B^T must be the GP's tau^2 (K + nugget) in both forms
+    jac = np.asarray(jax.jacfwd(lambda vv: term.values_at(
+        pr.model.prepare({**p, **dict(zip(names, vv))})[1], jnp.asarray(pairs)))(jnp.asarray(v)))  # fmt: skip
+    cov_v = np.eye(len(pairs))
+    cov_v[:t, :t] = 0.01**2 * gram[:t, :t]
+    np.testing.assert_allclose(jac @ cov_v @ jac.T, 0.01**2 * gram, atol=1e-4 * 1e-5)
 
 
-def term_params(model, p, z):
-    q = dict(p)
-    for j, v in enumerate(z):
-        q[f"gp_z_{j}_yaw"] = v
-    return model.prepare(q)[1]
+def test_the_centred_joint_prior_is_the_gps_normal_and_enters_the_samplers_log_prior():
+    _, pr = _problem("1,u", "centred")
+    term = pr.model.effects[-1]
+    names = list(term.joint_names())
+    pairs = np.asarray(term.reference)[: len(names)]
+    cov = 0.007**2 * (_numpy_kernel(pairs, pairs) + JITTER * np.eye(len(names)))
+    p = _values(pr.model, seed=5, tau=0.007)
+    f = np.array([p[n] for n in names])
+    expected = scipy.stats.multivariate_normal(np.zeros(len(names)), cov).logpdf(f)
+    assert abs(float(term.joint_log_prior(p)) - expected) < EXACT * abs(expected)
+    # in the sampler's coordinates: moving only the centred values changes the log prior by the
+    # joint prior's difference (their own declared normal priors do not enter; the Jacobian of a
+    # torque ratio does not depend on the torque)
+    coords = pr.coords
+    moved = {**p, **{n: p[n] + 0.004 * (-1) ** j for j, n in enumerate(names)}}
+    f2 = np.array([moved[n] for n in names])
+    got = float(coords.log_prior(jnp.asarray(coords.from_physical(moved)))
+                - coords.log_prior(jnp.asarray(coords.from_physical(p))))  # fmt: skip
+    want = scipy.stats.multivariate_normal(np.zeros(len(names)), cov).logpdf(f2) - expected
+    assert abs(got - want) < 1e-8 * max(1.0, abs(want))
+    # a prior of another kind on a centred value is refused (only fixing it is allowed)
+    from heli_uq.model.prior import Prior
+
+    with pytest.raises(ParameterError, match="joint prior"):
+        pr.priors.updated(pr.model, {names[0]: Prior("lognormal", 0.01, 1.0)})
+
+
+def test_prior_draws_of_the_centred_values_have_the_gps_covariance():
+    _, pr = _problem("1,u", "centred")
+    names = list(pr.model.joint_names)
+    pairs = np.asarray(pr.model.effects[-1].reference)[: len(names)]
+    draws = pr.priors.draw(pr.model, np.random.default_rng(11), (1, DRAWS))
+    f = np.stack([draws[n][0] for n in names], axis=-1)  # (DRAWS, t)
+    scaled = f / draws["gp_tau_yaw"][0][:, None]  # f / tau ~ N(0, K) exactly
+    corr = _numpy_kernel(pairs, pairs) + JITTER * np.eye(len(names))
+    np.testing.assert_allclose(np.cov(scaled.T), corr, atol=COV_ATOL)
+    # the amplitude keeps its own half-normal prior: E|tau| = sd sqrt(2 / pi)
+    assert abs(draws["gp_tau_yaw"].mean() / (0.01 * np.sqrt(2 / np.pi)) - 1) < 5 / np.sqrt(DRAWS)
 
 
 def test_the_torque_is_orthogonal_to_the_gains_over_the_training_pairs(problem):
@@ -139,7 +199,7 @@ def test_gradient_matches_finite_differences(problem):
     term = pr.model.effects[-1]
     p = _values(pr.model, seed=2)
     u = jnp.asarray(np.unique(pr.u, axis=0)[-1] + 0.013)  # between the pairs
-    names = ["gp_tau_yaw", "gp_z_0_yaw", f"gp_z_{term.n_pairs - 1}_yaw"]
+    names = ["gp_tau_yaw", _value_names(term)[0], f"gp_z_{term.n_pairs - 1}_yaw"]
 
     def torque(values):
         q = {**p, **dict(zip(names, values))}
@@ -173,6 +233,7 @@ def test_description_round_trip_keeps_the_pairs(problem):
 def test_bad_options_are_refused():
     for item, needle in (({"effect": "gp_torque", "axis": "yaw", "length_scale": 0.0}, "length_scale"),
                          ({"effect": "gp_torque", "axis": "yaw", "project": "x"}, "project"),
+                         ({"effect": "gp_torque", "axis": "yaw", "form": "x"}, "form"),
                          ({"effect": "gp_torque", "axis": "yaw", "width": 1}, "width")):  # fmt: skip
         with pytest.raises(ParameterError, match=needle):
             build_model([item])
@@ -192,6 +253,6 @@ def test_a_users_priors_from_the_unadapted_model_are_kept_and_completed():
     pr = make_problem(rec, (0.0, 45.0), (45.0, 60.0), model=model, priors=priors, error="iid")
     assert pr.priors.params["gp_tau_yaw"].describe() == Prior("halfnormal", 0.003).describe()
     assert not pr.priors.params["m"].free
-    z_names = [n for n in pr.model.names if n.startswith("gp_z_")]
-    assert len(z_names) == pr.model.effects[-1].n_pairs > 0
+    value_names = [n for n in pr.model.names if n.startswith(("gp_f_", "gp_z_"))]
+    assert len(value_names) == pr.model.effects[-1].n_pairs > 0
     assert list(pr.priors.params) == list(pr.model.names)

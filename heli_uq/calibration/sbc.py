@@ -111,6 +111,7 @@ def draw_replicate(r: int, priors: PriorSet, duration: float, model: HeliModel =
     rng = np.random.default_rng([2026, r])
     for attempt in range(MAX_REDRAWS):
         truth = {n: float(priors.params[n].sample(rng)) for n in model.names}
+        truth = {n: float(v) for n, v in model.draw_joint(truth, rng).items()}  # a term's joint prior
         sigma = float(SIGMA_PRIOR.sample(rng))
         x0 = np.array(SYNTHETIC_X0) + rng.normal(size=4) * [X0_ANGLE_SD, X0_ANGLE_SD,
                                                            X0_RATE_SD, X0_RATE_SD]

@@ -42,8 +42,9 @@ def _effects_help() -> str:
                  "nn_W_*, nn_b_*, nn_w_* [N m]); options inputs (u | u,x,v) and hidden in a "
                  "model file")
     lines.append("  gp_torque          model discrepancy: a Gaussian-process torque of the voltages "
-                 "(gp_tau [N m], gp_z_J at each voltage pair of the span); options length_scale "
-                 "[V] and project in a model file")
+                 "(gp_tau [N m]; gp_f_J [N m] at each voltage pair of the training window, "
+                 "gp_z_J whitened at the test window's new pairs); options length_scale [V], "
+                 "project and form (centred | whitened) in a model file")
     return "\n".join(lines)
 
 

@@ -106,6 +106,23 @@ class HeliModel(eqx.Module):
         """``{name: first guess of a fit}`` (Table 1 for the mechanics and gains)."""
         return {par.name: par.start_value() for par in self.parameters()}
 
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """Parameters under a term's joint prior (:meth:`AbstractTerm.joint_names`)."""
+        return tuple(n for term in self.terms for n in term.joint_names())
+
+    def joint_log_prior(self, p):
+        """Sum of the terms' joint log priors at parameters ``p`` (0 without any)."""
+        return sum((term.joint_log_prior(p) for term in self.terms if term.joint_names()), 0.0)
+
+    def draw_joint(self, values: dict, rng) -> dict:
+        """``values`` (draws of one shape) with the :attr:`joint_names` redrawn from the
+        terms' joint priors."""
+        out = dict(values)
+        for term in self.terms:
+            out.update(term.draw_joint(out, rng))
+        return out
+
     def complete(self, values: Mapping | None = None, *, where: str = "parameters") -> dict:
         """All parameters as a dict: ``values`` where given, defaults elsewhere.
 

@@ -78,7 +78,7 @@ def prior_draws(problem, n: int, seed: int = 0) -> dict:
     for AR(1) errors, ``tau`` [s] and ``rho`` (1, n, 2)."""
     rng = np.random.default_rng(seed)
     priors: PriorSet = problem.priors
-    out = {name: p.sample(rng, (1, n)) for name, p in priors.params.items() if p.free}
+    out = priors.draw(problem.model, rng, (1, n))
     for name in X0_NAMES:
         out[name] = priors.x0_prior(name, problem.x0_center).sample(rng, (1, n))
     out["sigma"] = np.stack([priors.noise[f"sigma_{o}"].sample(rng, (1, n)) for o in OUTPUTS], axis=-1)

@@ -313,11 +313,17 @@ class Coordinates:
 
     def _log_prior_and_physical(self, z, skip=()):
         """``(log prior of z without the free parameters at the indices skip, parameters)``
-        from one evaluation of the map."""
+        from one evaluation of the map.  Parameters under a term's joint prior
+        (:attr:`HeliModel.joint_names`, normal declared priors: ``w = x``) take that prior
+        instead of their own."""
         mapped = self._physical_and_scales(z)
         out = mapped[0]
-        lp = sum((self.priors[n].log_density_coordinate(self.priors[n].to_coordinate(out[n]))
-                  for i, n in enumerate(self.free) if i not in skip), jnp.zeros(()))  # fmt: skip
+        joint = set(self.model.joint_names)
+        own = [n for i, n in enumerate(self.free) if i not in skip and n not in joint]
+        lp = sum((self.priors[n].log_density_coordinate(self.priors[n].to_coordinate(out[n])) for n in own),
+                 jnp.zeros(()))  # fmt: skip
+        if joint:
+            lp = lp + self.model.joint_log_prior(out)
         return lp + self._log_jacobian(z, mapped), out
 
     def log_prior(self, z):

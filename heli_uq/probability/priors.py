@@ -31,6 +31,8 @@ import dataclasses
 import os
 from collections.abc import Mapping
 
+import numpy as np
+
 from heli_uq.errors import ParameterError
 from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.parameter import check_prior
@@ -109,6 +111,9 @@ class PriorSet:
         for name, spec in changes.items():
             prior = spec if isinstance(spec, Prior) else prior_from_json(spec, f"{where}: {name}")
             if name in params:
+                if name in model.joint_names and prior.kind not in ("normal", "fixed"):
+                    raise ParameterError(f"{where}: {name!r} has its term's joint prior; it may only be "
+                                         f"fixed, found {prior.describe()}")  # fmt: skip
                 params[name] = check_prior(model.parameter(name), prior, where)
             elif name in x0:
                 if prior.kind not in ("normal", "fixed"):
@@ -124,6 +129,16 @@ class PriorSet:
                 raise ParameterError(f"{where}: unknown name {name!r}; expected one of "
                                      f"{', '.join(self.names)}")  # fmt: skip
         return PriorSet(params, x0, noise)
+
+    def draw(self, model: HeliModel, rng, shape=()) -> dict:
+        """Prior draws ``{name: array shape}`` of every free parameter of ``model``: each
+        from its own prior, those under a term's joint prior (:attr:`HeliModel.joint_names`)
+        from that prior given the others."""
+        free = [n for n in model.names if self.params[n].free]
+        draws = {n: self.params[n].sample(rng, shape) for n in free}
+        fixed = {n: np.full(shape, self.params[n].a) for n in model.names if not self.params[n].free}
+        joint = model.draw_joint({**fixed, **draws}, rng)
+        return {n: joint[n] for n in free}
 
     def to_json(self) -> dict:
         """``{name: spec}`` of every entry (``null`` for the data-centred x0 default)."""

@@ -125,6 +125,22 @@ class AbstractTerm(eqx.Module):
         """
         return {}
 
+    def joint_names(self) -> tuple[str, ...]:
+        """Parameters whose prior is this term's joint prior (:meth:`joint_log_prior`), not
+        their declared one-dimensional prior (none by default).  Their declared prior is
+        normal: it sets their sampling coordinate and a least-squares start's scale."""
+        return ()
+
+    def joint_log_prior(self, p):
+        """Log density [in physical units] of the :meth:`joint_names` given the other
+        parameters in ``p`` (0 by default)."""
+        return 0.0
+
+    def draw_joint(self, values: dict, rng) -> dict:
+        """Draws of the :meth:`joint_names` from their joint prior given draws of the other
+        parameters in ``values`` (arrays of one shape S): ``{name: array S}``."""
+        return {}
+
     def stiffness(self, p, inertia) -> float:
         """Largest rate [1/s] this term adds to the linearised dynamics (0 if negligible).
 

@@ -23,22 +23,40 @@ would cause, instead of the narrow band of a model that assumes its gains hold a
 it has not seen.  (A record predicted at pairs that are not reference pairs gets the
 interpolant only, the conditional mean: fit with a test window to get its spread.)
 
+**Two forms of the same prior** (option ``form``).  ``"whitened"`` samples every pair's
+``z_j`` as above.  Where the training window pins a pair's torque ``f_j``, its whitened
+value is ``z_j ~ f_j / tau``: a curved ridge along ``log tau`` (a funnel) that NUTS
+crosses with divergences.  ``"centred"`` (the default) samples the training pairs'
+values ``f_t`` themselves (parameters ``gp_f_<j>_<axis>`` [N m], torque-type) with the
+joint prior ``f_t ~ N(0, tau^2 K_tt)``, which the data dominate, and keeps the new pairs
+whitened given them, where the prior dominates:
+
+    f_n = K_nt K_tt^{-1} f_t + tau L_c z_n,   L_c L_c^T = K_nn - K_nt K_tt^{-1} K_tn
+
+(``K`` with the nugget).  The joint prior is the term's own
+(:meth:`GPTorque.joint_log_prior`, :meth:`GPTorque.draw_joint`); the declared prior of
+each ``gp_f_j`` (normal, sd ``TAU_PRIOR_SD``) only sets its sampling coordinate and the
+least-squares start's scale.  Both forms give ``f(P) ~ N(0, tau^2 K)``.
+
 **Keeping the GP from absorbing the physics.**  As for
 :class:`~heli_uq.model.terms.neural_torque.NeuralTorque`, ``beta`` is the least-squares
 fit of ``f`` at the *training* pairs (weights: samples held) on ``{u_theta, u_psi}``
 (``project="u"``) or ``{1, u_theta, u_psi}`` (``project="1,u"``, with a
 ``torque_offset`` on the axis), subtracted everywhere: the gains own the linear part.
 
-Parameters are named ``gp_tau_<axis>`` and ``gp_z_<j>_<axis>``.  The reference pairs,
-the factor ``L^{-T}``, and the projection are set from the record
+Parameters are named ``gp_tau_<axis>``, ``gp_f_<j>_<axis>`` (centred form, the training
+pairs) and ``gp_z_<j>_<axis>``.  The reference pairs, the number of them the training
+window holds, the factor ``L^{-T}`` (whitened form) and the projection are set from the record
 (:meth:`GPTorque.adapt_to`) and stored in the model's description.
 """
 
 from __future__ import annotations
 
+import functools
 from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -47,7 +65,7 @@ from heli_uq.model.parameter import Parameter
 from heli_uq.model.prior import Prior
 from heli_uq.model.terms.base import AbstractEffect, AbstractTorque, float_tuple, gain_projection, on_axis
 
-__all__ = ["GPTorque", "kernel", "LENGTH_SCALE", "TAU_PRIOR_SD", "MAX_PAIRS", "JITTER"]
+__all__ = ["GPTorque", "kernel", "LENGTH_SCALE", "TAU_PRIOR_SD", "MAX_PAIRS", "JITTER", "FORMS"]
 
 #: Default length scale [V] of the squared-exponential kernel over the voltages.
 LENGTH_SCALE = 0.1
@@ -61,6 +79,8 @@ MAX_PAIRS = 80
 JITTER = 1e-6
 #: The spans projected out (module docstring).
 PROJECTIONS = ("u", "1,u", "none")
+#: The parameterisations of the values at the pairs (module docstring).
+FORMS = ("centred", "whitened")
 
 
 def kernel(a, b, length_scale: float):
@@ -88,6 +108,23 @@ def _reference_pairs(u_train, u_span, max_pairs: int) -> np.ndarray:
     return pairs
 
 
+@functools.lru_cache(maxsize=16)
+def _centred_factors(reference: tuple, length_scale: float, n_fitted: int) -> dict:
+    """Matrices of the centred form (module docstring) for reference pairs (J, 2) [V] whose
+    first ``n_fitted`` the training window holds: ``lower_tt`` (Cholesky of ``K_tt``),
+    ``cond_mean`` (``K_nt K_tt^{-1}``), ``lower_c`` (Cholesky of the conditional
+    covariance) and ``gram_inv`` (``K^{-1}``, the kernel weights of ``f(P)``)."""
+    pairs = np.asarray(reference, dtype=float)
+    gram = kernel(pairs, pairs, length_scale) + JITTER * np.eye(len(pairs))
+    t = n_fitted
+    lower_tt = np.linalg.cholesky(gram[:t, :t])
+    cond_mean = np.linalg.solve(gram[:t, :t], gram[:t, t:]).T
+    cond_cov = gram[t:, t:] - cond_mean @ gram[:t, t:]
+    return {"lower_tt": lower_tt, "cond_mean": cond_mean,
+            "lower_c": np.linalg.cholesky(0.5 * (cond_cov + cond_cov.T)),
+            "gram_inv": np.linalg.inv(gram)}  # fmt: skip
+
+
 class GPTorque(AbstractEffect, AbstractTorque):
     """Gaussian-process torque ``T(u)`` on ``axis`` (module docstring).
 
@@ -104,6 +141,10 @@ class GPTorque(AbstractEffect, AbstractTorque):
     projection : tuple of tuple of float
         (3, J) rows: ``beta = projection @ f(P)`` (zero columns at pairs outside the
         training window); empty for ``project="none"``.
+    form : {"centred", "whitened"}
+        How the values at the pairs are sampled (module docstring).
+    n_fitted : int
+        How many of the reference pairs (the first) the training window holds.
     """
 
     kind: ClassVar[str] = "gp_torque"
@@ -114,6 +155,8 @@ class GPTorque(AbstractEffect, AbstractTorque):
     reference: tuple = eqx.field(static=True, default=(), converter=float_tuple)
     whiten: tuple = eqx.field(static=True, default=(), converter=float_tuple)
     projection: tuple = eqx.field(static=True, default=(), converter=float_tuple)
+    form: str = eqx.field(static=True, default="centred")
+    n_fitted: int = eqx.field(static=True, default=0)
 
     def __check_init__(self):
         if isinstance(self.length_scale, bool) or not self.length_scale > 0:
@@ -121,7 +164,14 @@ class GPTorque(AbstractEffect, AbstractTorque):
         if self.project not in PROJECTIONS:
             raise ParameterError(f"gp_torque: project must be one of {', '.join(PROJECTIONS)}, "
                                  f"found {self.project!r}")  # fmt: skip
-        if self.reference and len(self.whiten) != len(self.reference):
+        if self.form not in FORMS:
+            raise ParameterError(f"gp_torque: form must be one of {', '.join(FORMS)}, found {self.form!r}")
+        if self.reference and self.form == "centred" and not 0 < self.n_fitted <= len(self.reference):
+            raise ParameterError(f"gp_torque: n_fitted must be in 1..{len(self.reference)} (the "
+                                 f"reference pairs the training window holds), found "
+                                 f"{self.n_fitted!r} (a description written before the centred "
+                                 'form needs "form": "whitened")')  # fmt: skip
+        if self.reference and self.form == "whitened" and len(self.whiten) != len(self.reference):
             raise ParameterError(f"gp_torque: whiten needs {len(self.reference)} rows (one per "
                                  f"reference pair), found {len(self.whiten)}")  # fmt: skip
 
@@ -129,13 +179,51 @@ class GPTorque(AbstractEffect, AbstractTorque):
     def n_pairs(self) -> int:
         return len(self.reference)
 
+    @property
+    def _n_centred(self) -> int:
+        """Pairs whose value is sampled in torque units (the first ones)."""
+        return self.n_fitted if self.form == "centred" else 0
+
     def _declare(self):
         pars = [Parameter("gp_tau", "N m", 0.0, Prior("halfnormal", TAU_PRIOR_SD), "nonnegative", True,
                           None, "GP torque amplitude", TAU_START)]  # fmt: skip
+        pars += [Parameter(f"gp_f_{j}", "N m", 0.0, Prior("normal", 0.0, TAU_PRIOR_SD), "real", True, None,
+                           f"GP torque at reference pair {j} (joint prior N(0, gp_tau^2 K))", 0.0)
+                 for j in range(self._n_centred)]  # fmt: skip
         pars += [Parameter(f"gp_z_{j}", "1", 0.0, Prior("normal", 0.0, 1.0), "real", False, None,
                            f"GP torque, whitened value at reference pair {j}", 0.0)
-                 for j in range(self.n_pairs)]  # fmt: skip
+                 for j in range(self._n_centred, self.n_pairs)]  # fmt: skip
         return tuple(pars)
+
+    # ------------------------------------------------------- the joint prior
+    def _factors(self) -> dict:
+        return _centred_factors(self.reference, self.length_scale, self.n_fitted)
+
+    def joint_names(self) -> tuple[str, ...]:
+        """The centred values ``gp_f_j``: their prior is :meth:`joint_log_prior`."""
+        return tuple(self.name(f"gp_f_{j}") for j in range(self._n_centred))
+
+    def joint_log_prior(self, p):
+        """``log N(f_t; 0, tau^2 K_tt)`` of the centred values (0 in the whitened form)."""
+        if not self._n_centred:
+            return 0.0
+        f = jnp.stack([p[n] for n in self.joint_names()])
+        tau = p[self.name("gp_tau")]
+        lower = self._factors()["lower_tt"]
+        r = jax.scipy.linalg.solve_triangular(jnp.asarray(lower), f, lower=True) / tau
+        t = self._n_centred
+        return (-0.5 * jnp.sum(r * r) - t * jnp.log(tau) - np.sum(np.log(np.diag(lower)))
+                - 0.5 * t * np.log(2.0 * np.pi))  # fmt: skip
+
+    def draw_joint(self, values: dict, rng: np.random.Generator) -> dict:
+        """Draws of the centred values given draws of ``gp_tau`` in ``values`` (any
+        shape S): ``{gp_f_j: array S}``, ``f_t = tau L_tt w`` with ``w ~ N(0, I)``."""
+        if not self._n_centred:
+            return {}
+        tau = np.asarray(values[self.name("gp_tau")], dtype=float)
+        w = rng.standard_normal(tau.shape + (self._n_centred,))
+        f = tau[..., None] * (w @ self._factors()["lower_tt"].T)
+        return {n: f[..., j] for j, n in enumerate(self.joint_names())}
 
     # ------------------------------------------------------------ the record
     def adapt_to(self, u, y, dt, span_u=None) -> GPTorque:
@@ -147,24 +235,38 @@ class GPTorque(AbstractEffect, AbstractTorque):
         u = np.asarray(u, dtype=float)
         span = u if span_u is None else np.asarray(span_u, dtype=float)
         pairs = _reference_pairs(u, span, MAX_PAIRS)
-        gram = kernel(pairs, pairs, self.length_scale) + JITTER * np.eye(len(pairs))
-        whiten = np.linalg.inv(np.linalg.cholesky(gram)).T
-        if self.project == "none":
-            return GPTorque(self.axis, self.length_scale, self.project, pairs, whiten)
         train_pairs, counts = np.unique(u, axis=0, return_counts=True)
+        n_fitted = int(sum(tuple(p) in {tuple(q) for q in train_pairs} for p in pairs))
+        whiten = ()
+        if self.form == "whitened":
+            gram = kernel(pairs, pairs, self.length_scale) + JITTER * np.eye(len(pairs))
+            whiten = np.linalg.inv(np.linalg.cholesky(gram)).T
+        if self.project == "none":
+            return GPTorque(self.axis, self.length_scale, self.project, pairs, whiten, (), self.form,
+                            n_fitted)  # fmt: skip
         weights = np.zeros(len(pairs))
         index = {tuple(p): j for j, p in enumerate(pairs)}
         for p, c in zip(train_pairs, counts):
             if tuple(p) in index:
                 weights[index[tuple(p)]] = c
         projection = gain_projection(pairs, weights, self.project == "1,u")
-        return GPTorque(self.axis, self.length_scale, self.project, pairs, whiten, projection)
+        return GPTorque(self.axis, self.length_scale, self.project, pairs, whiten, projection, self.form,
+                        n_fitted)  # fmt: skip
 
     # ---------------------------------------------------------------- physics
     def _alpha(self, p):
-        """Kernel weights ``tau L^{-T} z`` (J,) [N m]."""
-        z = jnp.stack([p[self.name(f"gp_z_{j}")] for j in range(self.n_pairs)])
-        return p[self.name("gp_tau")] * (jnp.asarray(self.whiten) @ z)
+        """Kernel weights ``K^{-1} f(P)`` (J,) [N m]: ``tau L^{-T} z`` in the whitened form."""
+        tau = p[self.name("gp_tau")]
+        t = self._n_centred
+        new = range(t, self.n_pairs)
+        z = jnp.stack([p[self.name(f"gp_z_{j}")] for j in new]) if len(new) else None
+        if not t:
+            return tau * (jnp.asarray(self.whiten) @ z)
+        m = self._factors()
+        f = jnp.stack([p[n] for n in self.joint_names()])
+        if z is not None:
+            f = jnp.concatenate([f, jnp.asarray(m["cond_mean"]) @ f + tau * (jnp.asarray(m["lower_c"]) @ z)])
+        return jnp.asarray(m["gram_inv"]) @ f
 
     def values_at(self, p, u):
         """``f(u)`` [N m] before the projection, at voltage pairs ``u`` (k, 2) [V]."""
@@ -204,4 +306,5 @@ class GPTorque(AbstractEffect, AbstractTorque):
         return {"effect": self.kind, "axis": self.axis, "length_scale": self.length_scale,
                 "project": self.project, "reference": [list(r) for r in self.reference],
                 "whiten": [list(r) for r in self.whiten],
-                "projection": [list(r) for r in self.projection]}  # fmt: skip
+                "projection": [list(r) for r in self.projection], "form": self.form,
+                "n_fitted": self.n_fitted}  # fmt: skip

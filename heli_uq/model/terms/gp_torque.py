@@ -236,7 +236,8 @@ class GPTorque(AbstractEffect, AbstractTorque):
         span = u if span_u is None else np.asarray(span_u, dtype=float)
         pairs = _reference_pairs(u, span, MAX_PAIRS)
         train_pairs, counts = np.unique(u, axis=0, return_counts=True)
-        n_fitted = int(sum(tuple(p) in {tuple(q) for q in train_pairs} for p in pairs))
+        seen = {tuple(q) for q in train_pairs}
+        n_fitted = sum(tuple(p) in seen for p in pairs)  # the first ones (_reference_pairs)
         whiten = ()
         if self.form == "whitened":
             gram = kernel(pairs, pairs, self.length_scale) + JITTER * np.eye(len(pairs))

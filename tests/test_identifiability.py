@@ -201,3 +201,38 @@ def test_cli_identifiability_bad_input_is_one_line(tmp_path, capsys, argv, messa
     code = main(["identifiability", "--data", str(csv), *argv, "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err.strip()
     assert code == 2 and message in err and len(err.splitlines()) == 1
+
+
+def _gp_model(length_scale=0.15):
+    from heli_uq.model import build_model
+
+    return build_model([{"effect": "gp_torque", "axis": "yaw", "length_scale": length_scale}])
+
+
+def test_a_models_specification_leaves_out_what_it_took_from_a_record():
+    # a GP adapted to two spans holds different voltage pairs, but is the model a user gave
+    rec = synthetic_experiment(duration=20.0, seed=3, inputs="rig_steps")
+    a = _gp_model().adapted(rec.u[:800], rec.y[:800], rec.dt, rec.u)
+    b = _gp_model().adapted(rec.u[:1500], rec.y[:1500], rec.dt, rec.u[:1500])
+    assert a.describe() != b.describe()
+    assert a.specification() == b.specification() == _gp_model().specification()
+    assert _gp_model(0.3).specification() != a.specification()
+    assert a.describe()["effects"][0]["reference"] and "reference" not in a.specification()["effects"][0]
+
+
+def test_cli_identifiability_refuses_a_posterior_of_another_model_in_one_line(tmp_path, capsys):
+    import arviz as az
+
+    rec = synthetic_experiment(duration=1.0, seed=3)
+    csv = rec.to_csv(tmp_path / "rec.csv")
+    adapted = _gp_model().adapted(rec.u, rec.y, rec.dt)
+    idata = az.from_dict(posterior={"m": np.ones((1, 4))})
+    idata.posterior.attrs["model"] = json.dumps(adapted.describe())
+    idata.to_netcdf(tmp_path / "posterior.nc")
+    other = tmp_path / "gp.json"
+    other.write_text(json.dumps({"effects": [{"effect": "gp_torque", "axis": "yaw", "length_scale": 0.3}]}))
+    code = main(["identifiability", "--data", str(csv), "--model-file", str(other), "--posterior",
+                 str(tmp_path / "posterior.nc"), "--out", str(tmp_path / "o")])  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert '"length_scale": 0.15' in err and '"length_scale": 0.3' in err

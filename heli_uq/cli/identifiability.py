@@ -46,11 +46,15 @@ def cmd_identifiability(args) -> int:
         if not Path(args.posterior).is_file():
             raise ParameterError(f"--posterior {args.posterior}: no such file")
         idata, post_model = load_posterior(args.posterior)
-        if json.dumps(post_model.describe(), sort_keys=True) != json.dumps(model.describe(), sort_keys=True):
+        if json.dumps(post_model.specification(), sort_keys=True) != json.dumps(model.specification(),
+                                                                               sort_keys=True):  # fmt: skip
             raise ParameterError(f"--posterior {args.posterior}: sampled for the model "
-                                 f"{post_model.label!r}, this report is for {model.label!r}; give "
-                                 "the same --effects")  # fmt: skip
-        posterior = idata.posterior
+                                 f"{json.dumps(post_model.specification()['effects'])}, this report is "
+                                 f"for {json.dumps(model.specification()['effects'])}; give the same "
+                                 "--effects or --model-file")  # fmt: skip
+        # the posterior's own model: its terms hold what they took from the posterior's record
+        # (a GP's pairs over the whole span, a network's input scaling), so its draws map
+        model, posterior = post_model, idata.posterior
     out = out_dir(args.out)
     result = identifiability_report(
         record, out, model=model, free=free, base=base, priors=priors, posterior=posterior,

@@ -298,6 +298,15 @@ class HeliModel(eqx.Module):
                 "linear_torque": any(isinstance(t, LinearTorque) for t in self.torques),
                 "effects": [t.describe() for t in self.effects]}  # fmt: skip
 
+    def specification(self) -> dict:
+        """:meth:`describe` without what the terms took from a record (:meth:`adapted`: a
+        GP's voltage pairs, a network's input scaling): the model as a user specifies it,
+        equal for the same model adapted to different records."""
+        desc = self.describe()
+        desc["effects"] = [{k: v for k, v in d.items() if k not in t.record_keys}
+                           for t, d in zip(self.effects, desc["effects"])]  # fmt: skip
+        return desc
+
     @property
     def label(self) -> str:
         """Short text, e.g. ``"mechanistic + coulomb_friction(yaw)"``."""

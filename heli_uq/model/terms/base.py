@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+from typing import ClassVar
 
 import equinox as eqx
 import numpy as np
@@ -85,6 +86,8 @@ class AbstractTerm(eqx.Module):
 
     #: Name of the term kind, e.g. ``"coulomb_friction"`` (set by each final class).
     kind: eqx.AbstractClassVar[str]
+    #: Keys of :meth:`describe` that :meth:`adapt_to` sets from a record (none by default).
+    record_keys: ClassVar[tuple[str, ...]] = ()
 
     @abc.abstractmethod
     def parameters(self) -> tuple[Parameter, ...]:

@@ -148,6 +148,7 @@ class GPTorque(AbstractEffect, AbstractTorque):
     """
 
     kind: ClassVar[str] = "gp_torque"
+    record_keys: ClassVar[tuple[str, ...]] = ("reference", "whiten", "projection", "n_fitted")
     input_only: ClassVar[bool] = True
     axis: str = eqx.field(static=True, default="yaw")
     length_scale: float = eqx.field(static=True, default=LENGTH_SCALE)

@@ -126,6 +126,7 @@ class NeuralTorque(AbstractEffect, AbstractTorque):
     """
 
     kind: ClassVar[str] = "neural_torque"
+    record_keys: ClassVar[tuple[str, ...]] = ("center", "scale", "projection", "reference")
     axis: str = eqx.field(static=True, default="yaw")
     inputs: str = eqx.field(static=True, default="u")
     hidden: int = eqx.field(static=True, default=DEFAULT_HIDDEN)

@@ -256,3 +256,24 @@ def test_a_users_priors_from_the_unadapted_model_are_kept_and_completed():
     value_names = [n for n in pr.model.names if n.startswith(("gp_f_", "gp_z_"))]
     assert len(value_names) == pr.model.effects[-1].n_pairs > 0
     assert list(pr.priors.params) == list(pr.model.names)
+
+
+def test_fixing_the_amplitude_at_zero_is_one_clear_line_in_the_centred_form(tmp_path, capsys):
+    # the centred values' joint prior N(0, tau^2 K_tt) has no density at tau = 0: refused where
+    # the priors meet the adapted model, not a numpyro "no valid initial parameters" traceback
+    import json
+
+    from heli_uq.cli import main
+
+    csv = _record(seconds=20.0).to_csv(tmp_path / "rec.csv")
+    codes = {}
+    for form in ("centred", "whitened"):
+        spec = tmp_path / f"{form}.json"
+        spec.write_text(json.dumps({"effects": [{"effect": "gp_torque", "axis": "yaw", "form": form}]}))
+        argv = ["sample", "--data", str(csv), "--model-file", str(spec), "--train", "0:14", "--test", "14:20",
+                "--fix", "gp_tau_yaw=0", "--sampler", "prior", "--draws", "20", "--out", str(tmp_path / form)]
+        codes[form] = main(argv)
+        if form == "centred":
+            err = capsys.readouterr().err.strip()
+            assert len(err.splitlines()) == 1 and "gp_tau_yaw fixed at 0" in err
+    assert codes == {"centred": 2, "whitened": 0}  # the whitened form at tau = 0 is a model without it

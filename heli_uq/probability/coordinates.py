@@ -144,6 +144,8 @@ class Coordinates:
         missing = [p.name for p in params if p.name not in self.priors]
         if missing:
             raise ParameterError(f"priors: no prior for {', '.join(missing)}")
+        for term in self.model.terms:
+            term.check_priors(self.priors)
         free = tuple(p.name for p in params if self.priors[p.name].free)
         object.__setattr__(self, "free", free)
         possible = self._ratio_map_possible()

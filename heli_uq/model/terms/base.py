@@ -139,6 +139,10 @@ class AbstractTerm(eqx.Module):
         parameters in ``p`` (0 by default)."""
         return 0.0
 
+    def check_priors(self, priors) -> None:
+        """Raise a :class:`~heli_uq.errors.ParameterError` if the priors ``{name: Prior}``
+        of the adapted model leave this term without a proper density (nothing by default)."""
+
     def draw_joint(self, values: dict, rng) -> dict:
         """Draws of the :meth:`joint_names` from their joint prior given draws of the other
         parameters in ``values`` (arrays of one shape S): ``{name: array S}``."""

@@ -216,6 +216,15 @@ class GPTorque(AbstractEffect, AbstractTorque):
         return (-0.5 * jnp.sum(r * r) - t * jnp.log(tau) - np.sum(np.log(np.diag(lower)))
                 - 0.5 * t * np.log(2.0 * np.pi))  # fmt: skip
 
+    def check_priors(self, priors) -> None:
+        """The centred form needs ``tau > 0``: fixed at 0 the values' joint prior is a point
+        mass, which has no density (the whitened form is simply switched off)."""
+        tau = priors[self.name("gp_tau")]
+        if self._n_centred and not tau.free and tau.a <= 0:
+            raise ParameterError(f"{self.name('gp_tau')} fixed at {tau.a:g} switches the GP torque off, "
+                                 "and its centred values then have no prior density: leave gp_torque "
+                                 'out of the model (or give it "form": "whitened")')  # fmt: skip
+
     def draw_joint(self, values: dict, rng: np.random.Generator) -> dict:
         """Draws of the centred values given draws of ``gp_tau`` in ``values`` (any
         shape S): ``{gp_f_j: array S}``, ``f_t = tau L_tt w`` with ``w ~ N(0, I)``."""

@@ -35,8 +35,10 @@ whitened given them, where the prior dominates:
 
 (``K`` with the nugget).  The joint prior is the term's own
 (:meth:`GPTorque.joint_log_prior`, :meth:`GPTorque.draw_joint`); the declared prior of
-each ``gp_f_j`` (normal, sd ``TAU_PRIOR_SD``) only sets its sampling coordinate and the
-least-squares start's scale.  Both forms give ``f(P) ~ N(0, tau^2 K)``.
+each ``gp_f_j`` (normal, sd ``TAU_PRIOR_SD``: the joint prior's marginal variance
+``E[tau^2] K_jj`` under the default half-normal ``tau``) only sets its sampling coordinate,
+the least-squares start's scale and the identifiability report's prior variance.  Both
+forms give ``f(P) ~ N(0, tau^2 K)``.
 
 **Keeping the GP from absorbing the physics.**  As for
 :class:`~heli_uq.model.terms.neural_torque.NeuralTorque`, ``beta`` is the least-squares

@@ -112,8 +112,9 @@ class PriorSet:
             prior = spec if isinstance(spec, Prior) else prior_from_json(spec, f"{where}: {name}")
             if name in params:
                 if name in model.joint_names and prior.kind not in ("normal", "fixed"):
-                    raise ParameterError(f"{where}: {name!r} has its term's joint prior; it may only be "
-                                         f"fixed, found {prior.describe()}")  # fmt: skip
+                    raise ParameterError(f"{where}: the prior of {name!r} is its term's joint prior "
+                                         f"(a normal one sets only its sampling coordinate); fix it or "
+                                         f"leave it, found {prior.describe()}")  # fmt: skip
                 params[name] = check_prior(model.parameter(name), prior, where)
             elif name in x0:
                 if prior.kind not in ("normal", "fixed"):

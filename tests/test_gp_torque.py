@@ -277,3 +277,27 @@ def test_fixing_the_amplitude_at_zero_is_one_clear_line_in_the_centred_form(tmp_
             err = capsys.readouterr().err.strip()
             assert len(err.splitlines()) == 1 and "gp_tau_yaw fixed at 0" in err
     assert codes == {"centred": 2, "whitened": 0}  # the whitened form at tau = 0 is a model without it
+
+
+def test_the_posterior_stores_the_gp_torque_at_its_pairs():
+    # per draw, at the training pairs the stored torque of a term without projection is the
+    # centred values themselves (to the nugget); the pairs and their "fitted" flags are coords
+    import arviz as az
+
+    from heli_uq.output.inference_data import _add_gp_torques
+
+    _, pr = _problem("none", "centred")
+    term = pr.model.effects[-1]
+    samples = pr.priors.draw(pr.model, np.random.default_rng(2), (2, 3))
+    idata = az.from_dict(posterior=samples)
+    _add_gp_torques(idata, pr, samples)
+    torque = idata.posterior["gp_torque_yaw"]
+    assert torque.dims == ("chain", "draw", "gp_pair_yaw") and torque.attrs["units"] == "N m"
+    pairs = np.asarray(term.reference)
+    np.testing.assert_array_equal(torque["gp_pair_yaw_u_theta"], pairs[:, 0])
+    np.testing.assert_array_equal(torque["gp_pair_yaw_u_psi"], pairs[:, 1])
+    fitted = np.asarray(torque["gp_pair_yaw_fitted"])
+    assert fitted.sum() == term.n_fitted and fitted[: term.n_fitted].all()
+    f = np.stack([samples[n] for n in term.joint_names()], axis=-1)  # (2, 3, t)
+    scale = np.abs(f).max()
+    np.testing.assert_allclose(np.asarray(torque)[..., : term.n_fitted], f, atol=1e-4 * scale)

@@ -7,7 +7,9 @@ Groups:
   for a hybrid model also ``nn_torque_<axis>``, the network's output torque [N m] on the
   grid of :mod:`heli_uq.output.network` (dim ``nn_point_<axis>``, its inputs as coords;
   a network of the voltages also ``nn_torque_<axis>_unseen`` at the span's voltage pairs
-  the training window never holds);
+  the training window never holds); for a ``gp_torque`` term ``gp_torque_<axis>``, its
+  torque [N m] at its voltage pairs (dim ``gp_pair_<axis>``, coords the voltages and
+  ``fitted``; :mod:`heli_uq.output.gp`);
 * ``sample_stats``; ``prior`` (draws of every free prior, by name);
 * ``log_likelihood``: ``y``, the pointwise log likelihood of the training window per
   ``time_block`` of ``loglik_block`` samples (sums over each block; a block of 1 is the
@@ -50,6 +52,7 @@ from heli_uq.errors import DataFormatError
 from heli_uq.io import publish
 from heli_uq.model.spec import model_from_description
 from heli_uq.model.tables import X0_NAMES
+from heli_uq.output.gp import gp_torques
 from heli_uq.output.network import UNSEEN, network_torques
 from heli_uq.probability.likelihood import pointwise_log_likelihood
 from heli_uq.probability.noise import ar1_noise
@@ -216,6 +219,7 @@ def to_inference_data(run, *, prior_draws: int = 500, seed: int = 0, pp_draws: i
         "coordinate); y_pred and y_sim stored as float32, rounded to multiples of "
         f"{PREDICTIVE_RESOLUTION:.3g} rad")  # fmt: skip
     _add_network_torques(idata, problem, run.samples)
+    _add_gp_torques(idata, problem, run.samples)
     info = {k: v for k, v in run.info.items() if k not in ("x_map", "covariance")}
     idata.posterior.attrs.update({
         "sampler_info": json.dumps(info, default=lambda o: np.asarray(o).tolist()),
@@ -227,6 +231,22 @@ def to_inference_data(run, *, prior_draws: int = 500, seed: int = 0, pp_draws: i
         "free_parameters": ",".join(problem.coords.free),
     })  # fmt: skip
     return idata
+
+
+def _add_gp_torques(idata: az.InferenceData, problem, samples: dict) -> None:
+    """``gp_torque_<axis>`` of every GP term into the posterior (:mod:`heli_uq.output.gp`)."""
+    import xarray as xr
+
+    for axis, (torque, points, fitted) in gp_torques(problem, samples).items():
+        dim = f"gp_pair_{axis}"
+        coords = {dim: np.arange(torque.shape[-1]), f"{dim}_fitted": (dim, fitted),
+                  **{f"{dim}_{k}": (dim, np.asarray(v)) for k, v in points.items()}}  # fmt: skip
+        idata.posterior[f"gp_torque_{axis}"] = xr.DataArray(
+            torque, dims=("chain", "draw", dim),
+            coords={"chain": idata.posterior["chain"], "draw": idata.posterior["draw"], **coords},
+            attrs={"units": "N m", "long_name": f"GP torque on {axis} at its voltage pairs "
+                                                 "(u_theta, u_psi); fitted: the training window "
+                                                 "holds the pair"})  # fmt: skip
 
 
 def _add_network_torques(idata: az.InferenceData, problem, samples: dict) -> None:

@@ -35,12 +35,13 @@ import numpy as np
 
 from heli_uq.data import unseen_inputs
 from heli_uq.data.rates import evenly_spaced, measured_rates
+from heli_uq.model.terms.base import axis_index
 from heli_uq.model.terms.linear_torque import LINEAR_TORQUE_PARAMETERS
 from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.model.terms.rigid_body import MECHANICS_PARAMETERS, pitch_inertia, yaw_inertia
 from heli_uq.probability.priors import fixed_values
 
-__all__ = ["network_points", "network_torques", "network_terms", "is_network_weight",
+__all__ = ["network_points", "network_torques", "network_terms", "is_network_weight", "draw_torques",
            "gain_trade_off", "network_pairs", "band_widths", "axis_inertia", "reference_pitch", "MAX_POINTS",
            "WEIGHT_PREFIXES", "UNSEEN"]  # fmt: skip
 
@@ -100,8 +101,9 @@ def network_points(problem, term: NeuralTorque, max_points: int = MAX_POINTS, *,
     return {"time": np.asarray(problem.t)[idx], **{k: v[idx] for k, v in columns.items()}}
 
 
-def _torque_at(term: NeuralTorque, params: dict, points: dict):
-    """The term's torque [N m] at every grid point, shape (k,), for one parameter set."""
+def _torque_at(term, params: dict, points: dict):
+    """The torque [N m] of ``term`` (an effect on one axis) at every grid point, shape
+    (k,), for one parameter set; angles, rates or voltages missing from ``points`` are 0."""
     k = len(points["u_theta"])
     zeros = jnp.zeros(k)
 
@@ -112,7 +114,8 @@ def _torque_at(term: NeuralTorque, params: dict, points: dict):
     v = jnp.stack([col("omega_theta"), col("omega_psi")], axis=1)
     u = jnp.stack([col("u_theta"), col("u_psi")], axis=1)
     p = {**params, **term.derived(params)}
-    return jax.vmap(lambda xi, vi, ui: term.torque(p, xi, vi, ui))(x, v, u)
+    i = axis_index(term.axis)
+    return jax.vmap(lambda xi, vi, ui: term(p, xi, vi, ui)[i])(x, v, u)
 
 
 def network_torques(problem, samples: dict, max_points: int = MAX_POINTS) -> dict:
@@ -137,13 +140,14 @@ def network_torques(problem, samples: dict, max_points: int = MAX_POINTS) -> dic
         grids = {term.axis: network_points(problem, term, max_points)}
         if term.inputs == "u":
             grids[term.axis + UNSEEN] = network_points(problem, term, max_points, unseen=True)
-        out.update({key: (_draw_torques(problem, term, samples, points), points)
+        out.update({key: (draw_torques(problem, term, samples, points), points)
                     for key, points in grids.items() if len(points["u_theta"])})  # fmt: skip
     return out
 
 
-def _draw_torques(problem, term: NeuralTorque, samples: dict, points: dict) -> np.ndarray:
-    """Every draw's torque of ``term`` at ``points``, shape (chain, draw, k) [N m]."""
+def draw_torques(problem, term, samples: dict, points: dict) -> np.ndarray:
+    """Every draw's torque of ``term`` (an effect on one axis whose parameters are its own)
+    at ``points`` (``{input name: (k,)}``), shape (chain, draw, k) [N m]."""
     names = [p.name for p in term.parameters()]
     shape = None
     flat = {}

@@ -110,14 +110,18 @@ def _reference_pairs(u_train, u_span, max_pairs: int) -> np.ndarray:
     return pairs
 
 
+def _gram(pairs: np.ndarray, length_scale: float) -> np.ndarray:
+    """The kernel matrix of reference pairs (J, 2) [V] with the nugget, ``K + JITTER I``."""
+    return kernel(pairs, pairs, length_scale) + JITTER * np.eye(len(pairs))
+
+
 @functools.lru_cache(maxsize=16)
 def _centred_factors(reference: tuple, length_scale: float, n_fitted: int) -> dict:
     """Matrices of the centred form (module docstring) for reference pairs (J, 2) [V] whose
     first ``n_fitted`` the training window holds: ``lower_tt`` (Cholesky of ``K_tt``),
     ``cond_mean`` (``K_nt K_tt^{-1}``), ``lower_c`` (Cholesky of the conditional
     covariance) and ``gram_inv`` (``K^{-1}``, the kernel weights of ``f(P)``)."""
-    pairs = np.asarray(reference, dtype=float)
-    gram = kernel(pairs, pairs, length_scale) + JITTER * np.eye(len(pairs))
+    gram = _gram(np.asarray(reference, dtype=float), length_scale)
     t = n_fitted
     lower_tt = np.linalg.cholesky(gram[:t, :t])
     cond_mean = np.linalg.solve(gram[:t, :t], gram[:t, t:]).T
@@ -252,17 +256,15 @@ class GPTorque(AbstractEffect, AbstractTorque):
         n_fitted = sum(tuple(p) in seen for p in pairs)  # the first ones (_reference_pairs)
         whiten = ()
         if self.form == "whitened":
-            gram = kernel(pairs, pairs, self.length_scale) + JITTER * np.eye(len(pairs))
-            whiten = np.linalg.inv(np.linalg.cholesky(gram)).T
-        if self.project == "none":
-            return GPTorque(self.axis, self.length_scale, self.project, pairs, whiten, (), self.form,
-                            n_fitted)  # fmt: skip
-        weights = np.zeros(len(pairs))
-        index = {tuple(p): j for j, p in enumerate(pairs)}
-        for p, c in zip(train_pairs, counts):
-            if tuple(p) in index:
-                weights[index[tuple(p)]] = c
-        projection = gain_projection(pairs, weights, self.project == "1,u")
+            whiten = np.linalg.inv(np.linalg.cholesky(_gram(pairs, self.length_scale))).T
+        projection = ()
+        if self.project != "none":
+            weights = np.zeros(len(pairs))
+            index = {tuple(p): j for j, p in enumerate(pairs)}
+            for p, c in zip(train_pairs, counts):
+                if tuple(p) in index:
+                    weights[index[tuple(p)]] = c
+            projection = gain_projection(pairs, weights, self.project == "1,u")
         return GPTorque(self.axis, self.length_scale, self.project, pairs, whiten, projection, self.form,
                         n_fitted)  # fmt: skip
 

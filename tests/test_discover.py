@@ -45,10 +45,11 @@ def _record(effects, values, seed):
 # candidates one set of models, so the second reads the first's compiled programs.
 @pytest.mark.slow
 @pytest.mark.xdist_group("discover_30s")
-def test_discover_names_a_hidden_yaw_offset_and_closes_the_gap(tmp_path):
+def test_discover_names_a_hidden_yaw_offset_and_closes_the_gap(tmp_path, caplog):
     rec = _record(["yaw:torque_offset"], {"T_0_yaw": HIDDEN_T_0}, seed=11)
-    res = discover(rec, tmp_path, train=(0.0, SPLIT), test=(SPLIT, SECONDS), budget=TINY,
-                   candidates=CANDIDATES, scheduler="serial", log=lambda m: None)  # fmt: skip
+    kwargs = dict(train=(0.0, SPLIT), test=(SPLIT, SECONDS), budget=TINY, candidates=CANDIDATES,
+                  scheduler="serial", log=lambda m: None)  # fmt: skip
+    res = discover(rec, tmp_path, **kwargs)
     assert tuple(res) == DISCOVERY_KEYS
     assert json.loads((tmp_path / "discovery.json").read_text()) == res
     assert (res["effect"], res["axis"]) == ("torque_offset", "yaw")
@@ -73,6 +74,14 @@ def test_discover_names_a_hidden_yaw_offset_and_closes_the_gap(tmp_path):
         assert f"**{len(new_pairs)} voltage pair(s) the fitting window never holds**" in report
     else:
         assert "never holds" not in report
+    # run again (as after an interrupt): the refit's saved draws are continued, not redrawn
+    chunks = sorted((tmp_path / "refit" / "chunks").glob("nuts_chunk_*.pkl"))
+    stamps = [f.stat().st_mtime_ns for f in chunks]
+    with caplog.at_level("INFO", logger="heli_uq.output.posterior_study"):
+        again = discover(rec, tmp_path, **kwargs)
+    assert any("resumed from the saved chunks" in r.getMessage() for r in caplog.records)
+    assert chunks and [f.stat().st_mtime_ns for f in chunks] == stamps
+    assert again["parameters"] == res["parameters"] and again["gap_after"] == res["gap_after"]
 
 
 @pytest.mark.slow

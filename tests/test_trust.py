@@ -434,6 +434,59 @@ def test_unconverged_run_warns_strict_fails_and_resume_checks_its_manifest(tmp_p
     _one_line_error(capsys.readouterr().err, "--resume: nothing to resume")
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("cli_1s_record")
+def test_resume_auto_continues_a_run_of_the_same_settings_and_starts_afresh_under_others(tmp_path):
+    """``resume="auto"`` (what ``discover`` uses for its NUTS runs): the same call again
+    reloads the saved draws without a new MAP; other settings are named and sampled
+    afresh; an empty directory just samples."""
+    from heli_uq.output import sample_posterior
+
+    rec = synthetic_experiment(duration=1.0, seed=4, noise_std=(0.003, 0.003))
+    kw = dict(error="iid", chains=2, warmup=5, draws=20, n_starts=1, progress=False)
+    out = tmp_path / "post"
+    first, _ = sample_posterior(rec, out, resume="auto", **kw)
+    lines = []
+    again, _ = sample_posterior(rec, out, resume="auto", log=lines.append, **kw)
+    assert any("resumed from the saved chunks" in line for line in lines), lines
+    assert not any("MAP" in line or "cannot continue" in line for line in lines), lines
+    assert again.posterior.equals(first.posterior)
+    lines = []
+    other, _ = sample_posterior(rec, out, resume="auto", log=lines.append, **{**kw, "seed": 2})
+    assert any("cannot continue" in line and "seed 0 -> 2" in line for line in lines), lines
+    assert any("MAP done" in line for line in lines) and not any("resumed" in line for line in lines)
+    assert not other.posterior.equals(first.posterior)
+    assert json.loads((out / "chunks" / "manifest.json").read_text())["seed"] == 2  # the new run is saved
+    with pytest.raises(ParameterError, match="'auto' continues NUTS runs only"):
+        sample_posterior(rec, tmp_path / "laplace", sampler="laplace", resume="auto", **kw)
+
+
+def test_an_interrupted_command_is_told_a_command_that_parses(tmp_path):
+    """The line after Ctrl-C names the command that continues: with ``--resume`` where the
+    command has it (``sample``), unchanged where a rerun picks up what was saved
+    (``discover``, which has no ``--resume``: it was told to add one)."""
+    import shlex
+
+    from heli_uq.cli.main import _build, _interrupt_message
+    from heli_uq.inference.interrupt import Interrupted
+
+    parser, _ = _build()
+    for argv, resumes in ((["discover", "experimental", "--out", str(tmp_path)], False),
+                          (["sample", "--data", "experimental", "--out", str(tmp_path)], True)):  # fmt: skip
+        args = parser.parse_args(argv)
+        for exc in (Interrupted("12 of 350 draws per chain saved in X"), KeyboardInterrupt()):
+            message = _interrupt_message(exc, args, argv)
+            if resumes and not isinstance(exc, Interrupted):  # nothing saved under --out yet
+                assert message == "interrupted before anything was saved; run the command again"
+                continue
+            command = shlex.split(message.rsplit(": ", 1)[1])
+            assert command == ["heli-uq", *argv] + (["--resume"] if resumes else []), message
+            parser.parse_args(command[1:])  # the command given exists (argparse exits otherwise)
+            assert ("12 of 350 draws" in message) == isinstance(exc, Interrupted)
+            if not resumes:
+                assert "reuses the finished candidate fits and the refit's draws" in message
+
+
 #: The uninterrupted NUTS run that the interrupted, resumed and time-limited runs reproduce.
 FULL_RUN = dict(chains=2, warmup=30, draws=40, chunk=20, seed=3, progress=False)
 

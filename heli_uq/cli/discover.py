@@ -63,7 +63,8 @@ def add_parser(subparsers):
             "calibrated margin (else 'none'), refit with NUTS and compare before/after.\n\n"
             "Writes DIR/discovery.json, DIR/report.md, DIR/bands_before.png,\n"
             "DIR/bands_after.png, DIR/residuals.png, DIR/candidates.png, DIR/candidates/\n"
-            "(each fit; a rerun with the same DIR reuses them) and DIR/refit/ (posterior)."
+            "(each fit) and DIR/refit/ (posterior). Interrupted (Ctrl-C), the same command\n"
+            "run again reuses the finished candidate fits and continues the refit's saved draws."
         ),
         epilog=(
             "budgets: quick (2 MAP starts per candidate, NUTS 2 x (150 + 350) in the Laplace\n"
@@ -105,5 +106,5 @@ def add_parser(subparsers):
                    help="candidate fits on a Dask LocalCluster (default), in this process "
                         "(serial), or on the Dask scheduler at ADDRESS")  # fmt: skip
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
-    p.set_defaults(handler=cmd_discover)
+    p.set_defaults(handler=cmd_discover, rerun_reuses="the finished candidate fits and the refit's draws")
     return p

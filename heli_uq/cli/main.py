@@ -90,17 +90,24 @@ EXIT_INTERRUPTED = 130
 
 
 def _interrupt_message(exc: KeyboardInterrupt, args, argv: list[str]) -> str:
-    """One line: what was saved and the command that continues (if the command resumes)."""
+    """One line: what was saved and the command that continues: the same one with
+    ``--resume`` for a command that has it, the same one unchanged for a command whose
+    parser sets ``rerun_reuses`` (what a rerun picks up, e.g. ``discover``)."""
     from pathlib import Path
 
     from heli_uq.inference.interrupt import Interrupted
     from heli_uq.inference.manifest import MANIFEST_FILE
 
-    again = [PROG, *argv] + ([] if "--resume" in argv else ["--resume"])
+    resumes = hasattr(args, "resume")
+    again = [PROG, *argv] + (["--resume"] if resumes and "--resume" not in argv else [])
+    reuses = getattr(args, "rerun_reuses", None)
+    if reuses is not None:
+        saved = f"{exc.saved}; " if isinstance(exc, Interrupted) else ""
+        return f"interrupted: {saved}the same command reuses {reuses}: {shlex.join(again)}"
     if isinstance(exc, Interrupted):
         return f"interrupted: {exc.saved}; continue with: {shlex.join(again)}"
     out = getattr(args, "out", None)
-    saved = sorted(Path(out).rglob(MANIFEST_FILE)) if out and hasattr(args, "resume") else []
+    saved = sorted(Path(out).rglob(MANIFEST_FILE)) if out and resumes else []
     if saved:  # between sampler blocks' safe points (MAP, post-processing): chunks are on disk
         return (f"interrupted; the draws saved in {saved[0].parent} continue with: "
                 f"{shlex.join(again)}")  # fmt: skip

@@ -66,6 +66,9 @@ def _posterior(record, model, train, test, out, cost, seed, guess, time_limit=No
     is already the multi-start MAP of the same model, so it is the only start (more
     starts cost a stiff model minutes and find nothing better); on a single window the
     posterior also sees the scoring part, and the budget's starts are tried too.
+
+    A run saved in ``out`` with the same settings (an interrupted discovery, or a finished
+    one run again) is continued, not sampled afresh.
     """
     starts = 1 if test is not None else cost.n_starts
     idata, summary = sample_posterior(record, out, model=model, train=train, test=test, sampler="nuts",
@@ -74,7 +77,7 @@ def _posterior(record, model, train, test, out, cost, seed, guess, time_limit=No
                                       max_tree_depth=cost.max_tree_depth, n_starts=starts,
                                       adapt_mass_matrix=cost.adapt_mass_matrix,
                                       guesses=(guess,), time_limit=time_limit,
-                                      max_draws=cost.max_samples)  # fmt: skip
+                                      max_draws=cost.max_samples, resume="auto")  # fmt: skip
     pp = idata.posterior_predictive
     y_sim = np.asarray(pp["y_sim"]).reshape((-1,) + pp["y_sim"].shape[2:])
     y_pred = np.asarray(pp["y_pred"]).reshape((-1,) + pp["y_pred"].shape[2:])

@@ -48,7 +48,10 @@ Steps (the module of each in parentheses):
    again pass the margin against the smaller model (parsimony).  With ``max_effects > 1``
    the step repeats from the chosen model until nothing passes.
 6. **Refit** the chosen model with NUTS (:func:`heli_uq.output.sample_posterior`) and
-   report the gap before and after.
+   report the gap before and after.  Its draws are saved as they are made, and a rerun
+   with the same output directory and settings continues them (``resume="auto"``), so an
+   interrupted discovery loses at most a chunk of draws; the base fit is made again
+   (seconds to a minute).
 """
 
 from __future__ import annotations

@@ -20,6 +20,7 @@ from heli_uq.inference.map import find_map as find_map
 from heli_uq.inference.map import laplace as laplace
 from heli_uq.inference.nuts import TARGET_ACCEPT as TARGET_ACCEPT
 from heli_uq.inference.nuts import SamplerRun as SamplerRun
+from heli_uq.inference.nuts import resume_obstacle as resume_obstacle
 from heli_uq.inference.nuts import run_nuts as run_nuts
 from heli_uq.inference.start import Start as Start
 from heli_uq.inference.start import prepare_start as prepare_start
@@ -31,6 +32,6 @@ SAMPLERS = ("nuts", "emcee", "laplace")
 
 __all__ = ["Checkpoint", "LogDensity", "constrain_draws", "log_density_setup", "run_emcee",
            "masked_least_squares", "MapResult", "find_map", "laplace", "TARGET_ACCEPT",
-           "SamplerRun", "run_nuts", "run_laplace", "importance_resample", "Start", "least_squares_fit",
-           "prepare_start", "start_parameters", "SAMPLERS", "run_manifest", "train", "Training",
-           "level_scaled_covariance"]  # fmt: skip
+           "SamplerRun", "run_nuts", "resume_obstacle", "run_laplace", "importance_resample", "Start",
+           "least_squares_fit", "prepare_start", "start_parameters", "SAMPLERS", "run_manifest", "train",
+           "Training", "level_scaled_covariance"]  # fmt: skip

@@ -61,6 +61,18 @@ class Checkpoint:
             return None
         return json.loads(path.read_text(encoding="utf-8"))
 
+    def obstacle(self, manifest: dict) -> str | None:
+        """Why a run with ``manifest`` cannot continue the saved one (a phrase: ``"nothing
+        to resume"``, ``"a run without a manifest (older heli_uq)"``, or ``"other settings
+        (...)"`` naming each differing setting with its saved and new value); None if it can."""
+        saved = self.manifest()
+        if not (self.directory / _START).exists():
+            return "nothing to resume"
+        if saved is None:
+            return "a run without a manifest (older heli_uq)"
+        diff = mismatch_message(saved, manifest)
+        return f"other settings ({diff})" if diff else None
+
     def resume_info(self, manifest: dict) -> dict:
         """The saved start of a run with the same ``manifest``, to continue it.
 
@@ -70,18 +82,13 @@ class Checkpoint:
             If there is no saved run to resume, or the saved run's manifest differs
             (one line naming each differing setting with its saved and new value).
         """
-        path = self.directory / _START
-        saved = self.manifest()
-        if not path.exists() or saved is None:
-            what = "nothing to resume" if not path.exists() else "a run without a manifest (older heli_uq)"
-            raise ParameterError(f"resume: {what} in {self.directory}; start the run without "
-                                 "resuming")  # fmt: skip
-        diff = mismatch_message(saved, manifest)
-        if diff:
-            raise ParameterError(f"resume: the run in {self.directory} was made with other "
-                                 f"settings ({diff}); give the same settings, or start again "
-                                 "without resuming")  # fmt: skip
-        with open(path, "rb") as fh:
+        why = self.obstacle(manifest)
+        if why is not None and not why.startswith("other settings"):
+            raise ParameterError(f"resume: {why} in {self.directory}; start the run without resuming")
+        if why is not None:
+            raise ParameterError(f"resume: the run in {self.directory} was made with {why}; give the "
+                                 "same settings, or start again without resuming")  # fmt: skip
+        with open(self.directory / _START, "rb") as fh:
             return pickle.load(fh)["start"]
 
     def save(self, stream: str, index: int, record: dict) -> None:

@@ -44,7 +44,7 @@ from heli_uq.inference.start import Start, initial_draws, prepare_start
 from heli_uq.inference.whiten import SamplerMap, choose_walls
 from heli_uq.probability.problem import Problem
 
-__all__ = ["SamplerRun", "run_nuts", "TARGET_ACCEPT", "MIN_DRAWS_AT_LIMIT"]
+__all__ = ["SamplerRun", "run_nuts", "resume_obstacle", "TARGET_ACCEPT", "MIN_DRAWS_AT_LIMIT"]
 
 NUTS_EXTRA_FIELDS = ("diverging", "num_steps", "energy", "accept_prob", "potential_energy")
 #: Default target acceptance of the step-size adaptation.  On the full rig record
@@ -53,6 +53,8 @@ NUTS_EXTRA_FIELDS = ("diverging", "num_steps", "energy", "accept_prob", "potenti
 #: 10.9 min.  (Before the wall map 0.9 gave 1 divergence in 4000 draws.)
 TARGET_ACCEPT = 0.9
 CHUNK_DIR = "chunks"
+#: Default draws per saved chunk.
+CHUNK = 250
 #: Most NUTS iterations per compiled block (the size of its output buffers).
 BLOCK_MAX = 50
 #: Target wall time of one block [s]: the latency of an interrupt and of progress lines.
@@ -138,8 +140,26 @@ def _constrained(density, records: list[dict], chains: int, draws: int | None = 
     return {k: v.reshape((chains, x.shape[1]) + v.shape[1:]) for k, v in flat.items()}
 
 
+def _manifest(problem: Problem, **settings) -> dict:
+    """The manifest of a NUTS run (:func:`~heli_uq.inference.manifest.run_manifest`):
+    ``settings`` are the keyword arguments of :func:`run_nuts` that determine its draws."""
+    return run_manifest(problem, {"sampler": "nuts", **settings})
+
+
+def resume_obstacle(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000, draws: int = 1000,
+                    seed: int = 0, chunk: int = CHUNK, max_tree_depth: int = 8,
+                    target_accept: float = TARGET_ACCEPT, adapt_mass_matrix: bool = True) -> str | None:
+    """Why :func:`run_nuts` with these arguments cannot continue the run saved in
+    ``out_dir/chunks`` (a phrase, :meth:`~heli_uq.inference.checkpoint.Checkpoint.obstacle`:
+    nothing saved, or the saved run's differing settings); None if ``resume=True`` would
+    continue it.  Reads the directory only (creates it if missing)."""
+    return Checkpoint(pathlib.Path(out_dir) / CHUNK_DIR).obstacle(_manifest(
+        problem, chains=chains, warmup=warmup, draws=draws, chunk=chunk, seed=seed,
+        max_tree_depth=max_tree_depth, target_accept=target_accept, adapt_mass_matrix=adapt_mass_matrix))
+
+
 def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
-             draws: int = 1000, seed: int = 0, chunk: int = 250, resume: bool = False,
+             draws: int = 1000, seed: int = 0, chunk: int = CHUNK, resume: bool = False,
              progress: bool = True, max_tree_depth: int = 8,
              target_accept: float = TARGET_ACCEPT, adapt_mass_matrix: bool = True,
              start: Start | None = None, time_limit: float | None = None,
@@ -231,10 +251,9 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     check_draws_memory(problem, chains * most, f"draws: {chains} chains x {most} draws")
     t_start = time.perf_counter()
     checkpoint = Checkpoint(pathlib.Path(out_dir) / CHUNK_DIR)
-    manifest = run_manifest(problem, {
-        "sampler": "nuts", "chains": chains, "warmup": warmup, "draws": draws, "chunk": chunk,
-        "seed": seed, "max_tree_depth": max_tree_depth, "target_accept": target_accept,
-        "adapt_mass_matrix": adapt_mass_matrix})  # fmt: skip
+    manifest = _manifest(problem, chains=chains, warmup=warmup, draws=draws, chunk=chunk, seed=seed,
+                         max_tree_depth=max_tree_depth, target_accept=target_accept,
+                         adapt_mass_matrix=adapt_mass_matrix)  # fmt: skip
     info = checkpoint.resume_info(manifest) if resume else None
     records = checkpoint.load("nuts") if info is not None else []
     warm_record = checkpoint.load("nuts_warmup") if info is not None else []

@@ -20,7 +20,15 @@ import numpy as np
 
 from heli_uq.data.record import Experiment
 from heli_uq.errors import ParameterError
-from heli_uq.inference import SAMPLERS, TARGET_ACCEPT, prepare_start, run_emcee, run_laplace, run_nuts
+from heli_uq.inference import (
+    SAMPLERS,
+    TARGET_ACCEPT,
+    prepare_start,
+    resume_obstacle,
+    run_emcee,
+    run_laplace,
+    run_nuts,
+)
 from heli_uq.inference.draw_memory import check_draws_memory
 from heli_uq.io import atomic_write_text
 from heli_uq.log import progress_log
@@ -120,6 +128,12 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
         unused).  ``emcee`` runs ``ensembles`` (default ``chains``) independent ensembles of
         ``walkers`` walkers for ``warmup + draws`` steps each and keeps the last ``draws``.
     priors : PriorSet, optional
+    resume : bool or "auto"
+        Continue the run saved in ``out_dir`` (its MAP start and draws; refused under
+        other settings).  ``"auto"`` (NUTS only): continue it if it was made with the same
+        settings, else start afresh and say why, so running the same call again after an
+        interruption or a finished run picks up its draws (what ``discover`` does); a
+        last-layer network run always starts afresh (its hidden layers are trained first).
     adapt_mass_matrix, target_accept, max_tree_depth
         NUTS only, see :func:`heli_uq.inference.run_nuts`.
     time_limit : float, optional
@@ -161,6 +175,10 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     if network_posterior not in NETWORK_POSTERIORS:
         raise ParameterError(f"network_posterior: expected one of {NETWORK_POSTERIORS}, "
                              f"found {network_posterior!r}")  # fmt: skip
+    auto = resume == "auto"
+    if auto and sampler != "nuts":
+        raise ParameterError(f"resume: 'auto' continues NUTS runs only, found sampler {sampler!r}")
+    resume = False if auto else resume
     last_layer = None
     if network_posterior == "last-layer" and model is not None and network_terms(model) and not resume:
         priors = PriorSet.default(model) if priors is None else priors
@@ -172,6 +190,13 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
               f"{last_layer['train_seconds']:.0f} s; hidden layers fixed")  # fmt: skip
     problem = make_problem(record, train, test, model=model, priors=priors, error=error,
                            substeps=substeps)  # fmt: skip
+    nuts_settings = dict(chains=chains, warmup=warmup, draws=draws, seed=seed, max_tree_depth=max_tree_depth,
+                         target_accept=target_accept, adapt_mass_matrix=adapt_mass_matrix)  # fmt: skip
+    if auto and last_layer is None:
+        why = resume_obstacle(problem, out, **nuts_settings)
+        resume = why is None
+        if why not in (None, "nothing to resume"):
+            stage(f"cannot continue the draws saved in {out} ({why}): sampling afresh")
     per_chain = draws * (walkers or 2 * problem.coords.dim + 2 if sampler == "emcee" else 1)
     check_draws_memory(problem, chains * per_chain, f"draws: {chains} chains x {draws} draws"
                        + (" x walkers" if sampler == "emcee" else ""))  # fmt: skip
@@ -187,10 +212,8 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
           + (" (resumed from the saved chunks)" if resume else ""))  # fmt: skip
     if sampler == "nuts":
         left = None if time_limit is None else max(0.0, time_limit - (time.perf_counter() - t0))
-        run = run_nuts(problem, out, chains=chains, warmup=warmup, draws=draws, seed=seed,
-                       resume=resume, progress=progress, start=start,
-                       adapt_mass_matrix=adapt_mass_matrix, target_accept=target_accept,
-                       max_tree_depth=max_tree_depth, time_limit=left, max_draws=max_draws,
+        run = run_nuts(problem, out, **nuts_settings, resume=resume, progress=progress, start=start,
+                       time_limit=left, max_draws=max_draws,
                        converged=draws_converged if max_draws is not None else None)  # fmt: skip
     elif sampler == "laplace":
         if resume:

@@ -356,7 +356,7 @@ def test_posterior_nc_of_the_default_run_is_bounded(tmp_path):
 
     from heli_uq.cli.run import RUN_TRAIN_FRACTION
     from heli_uq.inference.density import constrain_draws, init_sites, log_density_setup
-    from heli_uq.inference.nuts import SamplerRun
+    from heli_uq.inference.sampler_run import SamplerRun
     from heli_uq.output.inference_data import PREDICTIVE_RESOLUTION, save_netcdf, to_inference_data
     from heli_uq.simulation import SYNTHETIC_PARAMS
 

@@ -40,7 +40,7 @@ from heli_uq.inference.checkpoint import Checkpoint
 from heli_uq.inference.density import LogDensity, constrain_draws, coordinate_names, log_density_setup
 from heli_uq.inference.interrupt import Progress
 from heli_uq.inference.manifest import run_manifest
-from heli_uq.inference.nuts import SamplerRun
+from heli_uq.inference.sampler_run import SamplerRun
 from heli_uq.inference.start import Start, initial_draws, prepare_start, whitening
 from heli_uq.probability.problem import Problem
 

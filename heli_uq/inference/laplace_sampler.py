@@ -32,6 +32,7 @@ import numpy as np
 
 from heli_uq.errors import ParameterError
 from heli_uq.inference.density import constrain_draws
+from heli_uq.inference.sampler_run import SamplerRun
 from heli_uq.inference.start import Start, prepare_start
 from heli_uq.probability.problem import Problem
 
@@ -112,8 +113,6 @@ def run_laplace(problem: Problem, out_dir=None, *, chains: int = 4, draws: int =
         ``info`` holds ``pareto_k`` and, when it exceeds :data:`PARETO_K_MAX`, a warning
         in ``warnings`` (failed by the health check).
     """
-    from heli_uq.inference.nuts import SamplerRun  # the result type of every sampler
-
     t0 = time.perf_counter()
     start = prepare_start(problem, seed=seed) if start is None else start
     rng = np.random.default_rng(seed)

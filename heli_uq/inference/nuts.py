@@ -21,7 +21,6 @@ step, whatever the block lengths).
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import pathlib
 import time
@@ -40,11 +39,12 @@ from heli_uq.inference.draw_memory import check_draws_memory
 from heli_uq.inference.interrupt import Interrupted, Progress, deferred_interrupt
 from heli_uq.inference.level_scale import level_scaled_covariance
 from heli_uq.inference.manifest import run_manifest
+from heli_uq.inference.sampler_run import SamplerRun
 from heli_uq.inference.start import Start, initial_draws, prepare_start
 from heli_uq.inference.whiten import SamplerMap, choose_walls
 from heli_uq.probability.problem import Problem
 
-__all__ = ["SamplerRun", "run_nuts", "resume_obstacle", "TARGET_ACCEPT", "MIN_DRAWS_AT_LIMIT"]
+__all__ = ["run_nuts", "resume_obstacle", "TARGET_ACCEPT", "MIN_DRAWS_AT_LIMIT"]
 
 NUTS_EXTRA_FIELDS = ("diverging", "num_steps", "energy", "accept_prob", "potential_energy")
 #: Default target acceptance of the step-size adaptation.  On the full rig record
@@ -64,22 +64,6 @@ FIRST_BLOCK = 2
 #: Fewest draws per chain a run stopped by its ``time_limit`` keeps (all of them if fewer
 #: are asked for): below that its ESS and R-hat say little.
 MIN_DRAWS_AT_LIMIT = 100
-
-
-@dataclasses.dataclass
-class SamplerRun:
-    """Raw result of a sampler.
-
-    ``samples``: dict of constrained draws (chain, draw, ...) by site name (physical
-    parameters, initial state, error model, coordinates ``z``); ``stats``: dict of per-draw
-    statistics (chain, draw); ``info``: sampler facts (wall time, MAP value, step size...);
-    ``problem``: the problem sampled (with the substeps the MAP chose).
-    """
-
-    samples: dict
-    stats: dict
-    info: dict
-    problem: Problem
 
 
 def _start_info(start: Start) -> dict:
@@ -141,18 +125,15 @@ def _constrained(density, records: list[dict], chains: int, draws: int | None = 
 
 
 def _manifest(problem: Problem, **settings) -> dict:
-    """The manifest of a NUTS run (:func:`~heli_uq.inference.manifest.run_manifest`):
-    ``settings`` are the keyword arguments of :func:`run_nuts` that determine its draws."""
+    """The manifest of a NUTS run; ``settings``: the arguments of :func:`run_nuts` that make its draws."""
     return run_manifest(problem, {"sampler": "nuts", **settings})
 
 
 def resume_obstacle(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000, draws: int = 1000,
                     seed: int = 0, chunk: int = CHUNK, max_tree_depth: int = 8,
                     target_accept: float = TARGET_ACCEPT, adapt_mass_matrix: bool = True) -> str | None:
-    """Why :func:`run_nuts` with these arguments cannot continue the run saved in
-    ``out_dir/chunks`` (a phrase, :meth:`~heli_uq.inference.checkpoint.Checkpoint.obstacle`:
-    nothing saved, or the saved run's differing settings); None if ``resume=True`` would
-    continue it.  Reads the directory only (creates it if missing)."""
+    """Why :func:`run_nuts` with these arguments cannot continue the run in ``out_dir/chunks``
+    (:meth:`~heli_uq.inference.checkpoint.Checkpoint.obstacle`); None if ``resume=True`` would."""
     return Checkpoint(pathlib.Path(out_dir) / CHUNK_DIR).obstacle(_manifest(
         problem, chains=chains, warmup=warmup, draws=draws, chunk=chunk, seed=seed,
         max_tree_depth=max_tree_depth, target_accept=target_accept, adapt_mass_matrix=adapt_mass_matrix))

@@ -696,3 +696,19 @@ def test_pair_fits_holding_the_chosen_single_are_carried_into_the_next_step():
     assert out["yaw:deadband+yaw:offset"]["reused"] is False
     # after a pair was chosen nothing is one effect beyond it
     assert carried(results, ["pitch:spring", "yaw:deadband"], results["pitch:spring+yaw:deadband"], 1) == {}
+
+
+def test_a_stored_fit_is_not_reused_under_other_library_versions(monkeypatch):
+    """A candidate fit stored by another heli_uq, jax or numpyro version is fitted again: its
+    signature holds the versions, as a sampler run's manifest does."""
+    from heli_uq.discovery import rounds
+    from heli_uq.discovery.candidates import FitTask
+    from heli_uq.inference.manifest import library_versions
+
+    rec = synthetic_experiment(duration=1.0, seed=3)
+    task = FitTask(rec, (0.0, 0.7), (0.7, 1.0), ("yaw:torque_offset",))
+    now = rounds.task_signature(rec, task)
+    assert rounds.task_signature(rec, task) == now
+    for name in ("heli_uq", "jax", "numpyro"):
+        monkeypatch.setattr(rounds, "library_versions", lambda n=name: {**library_versions(), n: "0.0.0"})
+        assert rounds.task_signature(rec, task) != now, name

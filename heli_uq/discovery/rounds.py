@@ -14,6 +14,7 @@ from heli_uq.data import Experiment
 from heli_uq.discovery.candidates import FitTask, fit_and_score
 from heli_uq.discovery.score import gap_text
 from heli_uq.executor import TaskFailed, run_tasks
+from heli_uq.inference.manifest import library_versions
 from heli_uq.io import atomic_write_text
 
 __all__ = ["FIT_VERSION", "CandidateStore", "run_round", "task_signature"]
@@ -26,13 +27,16 @@ FIT_VERSION = 3
 
 
 def task_signature(record: Experiment, task: FitTask) -> str:
-    """SHA-256 of the record's arrays and every setting of ``task`` that changes its fit."""
+    """SHA-256 of the record's arrays, every setting of ``task`` that changes its fit, and the
+    versions of heli_uq and of the libraries whose numerics make it (as a sampler run's
+    manifest, :func:`heli_uq.inference.manifest.library_versions`)."""
     h = hashlib.sha256()
     for a in (record.t, record.u, record.y):
         h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
     h.update(json.dumps([task.fit_window, task.score_window, task.effects, task.seed,
                          task.n_starts, task.draws, task.newton_steps, task.guesses, task.off,
-                         task.floor, [(n, p.to_json()) for n, p in task.priors], FIT_VERSION],
+                         task.floor, [(n, p.to_json()) for n, p in task.priors], FIT_VERSION,
+                         library_versions()],
                         default=float).encode())  # fmt: skip
     return h.hexdigest()
 

@@ -316,6 +316,12 @@ def test_bad_settings_and_requests_are_refused(tmp_path):
         SBCSettings(x0_prior="prior")
     with pytest.raises(ParameterError, match="unknown effect 'backlash'"):
         SBCSettings(effects=("yaw:backlash",))
+    # a term set up from the record: it used to fail every replicate with "KeyError: 'gp_f_0_yaw'"
+    for effect in ("yaw:gp_torque", "pitch:neural_torque"):
+        kind = effect.split(":")[1]
+        with pytest.raises(ParameterError, match=f"{kind}.*SBC draws a replicate's truth before"):
+            SBCSettings(effects=("yaw:coulomb_friction", "yaw:deadband", effect))
+    assert SBCSettings(effects=("yaw:coulomb_friction", "yaw:deadband")).effects  # named effects pass
     with pytest.raises(ParameterError, match="ranks"):
         SBCSettings(ranks=0)
     with pytest.raises(ParameterError, match="workers"):

@@ -54,6 +54,9 @@ class SBCSettings:
     effects : tuple of str
         Named effects added to the paper's model (``"yaw:quadratic_drag"``, ...): their
         parameters are drawn from the priors their terms declare and ranked like the others.
+        A term set up from its record (a network's input scaling, a Gaussian process's
+        voltage pairs: :attr:`~heli_uq.model.terms.base.AbstractTerm.record_keys`) is
+        refused: a replicate's truth is drawn before its record exists.
     """
 
     duration: float = 5.0
@@ -71,7 +74,12 @@ class SBCSettings:
 
     def __post_init__(self):
         object.__setattr__(self, "effects", tuple(self.effects))
-        build_model(list(self.effects))  # an unknown effect is refused here, by name
+        model = build_model(list(self.effects))  # an unknown effect is refused here, by name
+        from_record = [t.label for t in model.effects if t.record_keys]
+        if from_record:
+            raise ParameterError(f"effects: {', '.join(from_record)} set(s) itself up from the record "
+                                 "(its inputs' scaling or voltage pairs), and SBC draws a replicate's "
+                                 "truth before its record exists; calibrate named effects only")  # fmt: skip
         for name in ("duration", "prior_sd"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):

@@ -186,11 +186,26 @@ def test_cli_design_rejects_bad_input_in_one_line(tmp_path, capsys):
              (["--segment", "abc"], "--segment: expected LOW:HIGH"),
              (["--noise", "0.003,-1"], "noise: expected two numbers > 0"),
              (["--pitch", "10:-5"], "pitch envelope: expected -90 <= LOW < HIGH <= 90 deg"),
-             (["--discovery", str(tmp_path / "nowhere")], "discovery.json: not a discovery result")]
+             (["--discovery", str(tmp_path / "nowhere")], "discovery.json: not a discovery result"),
+             # a term not set up from a record: the design used to leave it out without a word
+             (["--effects", "yaw:gp_torque"], "gp_torque(yaw) is set up from a record"),
+             (["--model", "hybrid", "--nn-inputs", "u"], "neural_torque(yaw) is set up from a record")]
     for extra, needle in cases:
         code = main(["design", *extra, "--out", str(tmp_path / "o")])
         err = capsys.readouterr().err
         assert code == 2 and err.count("\n") == 1 and needle in err, (extra, err)
+
+
+def test_a_term_awaits_its_record_until_it_is_set_up_from_one():
+    from heli_uq.model import build_model
+    from heli_uq.simulation import synthetic_experiment
+
+    rec = synthetic_experiment(duration=2.0, seed=1)
+    for effect in ("yaw:gp_torque", "yaw:neural_torque"):
+        model = build_model([effect])
+        assert model.effects[0].awaits_record
+        assert not model.adapted(rec.u, rec.y, rec.dt).effects[0].awaits_record
+    assert not build_model(["yaw:coulomb_friction"]).effects[0].awaits_record  # takes nothing from one
 
 
 def test_cli_design_end_to_end_and_quiet(tmp_path, capsys):

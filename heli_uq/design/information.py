@@ -88,8 +88,16 @@ class DesignPrior:
                 center=None, sigma=DEFAULT_NOISE, x0=DESIGN_X0, dt: float = 0.01,
                 seed: int = 0) -> DesignPrior:  # fmt: skip
         """The package's priors, linearised at ``center`` (default: a fit of the rig record,
-        ``RIG_FIT``, with each effect at its start value)."""
+        ``RIG_FIT``, with each effect at its start value).  A term not yet set up from a
+        record (a network's input scaling, a Gaussian process's voltage pairs:
+        :attr:`~heli_uq.model.terms.base.AbstractTerm.awaits_record`) is refused: design from
+        a posterior of the fitted model (:meth:`from_posterior`)."""
         model = HeliModel() if model is None else model
+        waiting = [t.label for t in model.effects if t.awaits_record]
+        if waiting:
+            raise ParameterError(f"model: {', '.join(waiting)} is set up from a record (its inputs' scaling "
+                                 "or voltage pairs) and has none here; design from a posterior of the "
+                                 "fitted model (posterior=..., --posterior)")  # fmt: skip
         priors = PriorSet.default(model) if priors is None else priors
         free = [n for n in model.names if priors.params[n].free]
         base = model.start_values()

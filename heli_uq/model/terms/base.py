@@ -112,6 +112,12 @@ class AbstractTerm(eqx.Module):
         of this term (none by default)."""
         return {}
 
+    @property
+    def awaits_record(self) -> bool:
+        """True if this term takes values from a record (:attr:`record_keys`) and has not
+        been set up from one yet (:meth:`adapt_to`); False by default."""
+        return False
+
     def adapt_to(self, u, y, dt, span_u=None) -> AbstractTerm:
         """This term set up for a training window (``u`` (N, 2) [V], ``y`` (N, 2) [rad],
         ``dt`` [s]) and the voltages ``span_u`` (M, 2) [V] of the whole simulated span

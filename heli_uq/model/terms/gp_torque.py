@@ -183,6 +183,10 @@ class GPTorque(AbstractEffect, AbstractTorque):
                                  f"reference pair), found {len(self.whiten)}")  # fmt: skip
 
     @property
+    def awaits_record(self) -> bool:
+        return not self.reference  # adapt_to sets the voltage pairs
+
+    @property
     def n_pairs(self) -> int:
         return len(self.reference)
 

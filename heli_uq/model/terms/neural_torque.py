@@ -143,6 +143,10 @@ class NeuralTorque(AbstractEffect, AbstractTorque):
         if self.project not in PROJECTIONS:
             raise ParameterError(f"neural_torque: project must be one of {', '.join(PROJECTIONS)}, "
                                  f"found {self.project!r}")  # fmt: skip
+
+    @property
+    def awaits_record(self) -> bool:
+        return not self.center  # adapt_to sets the input scaling
         if isinstance(self.hidden, bool) or not isinstance(self.hidden, int) or self.hidden < 1:
             raise ParameterError(f"neural_torque: hidden must be a positive integer, "
                                  f"found {self.hidden!r}")  # fmt: skip

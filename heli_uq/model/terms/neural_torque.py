@@ -143,10 +143,6 @@ class NeuralTorque(AbstractEffect, AbstractTorque):
         if self.project not in PROJECTIONS:
             raise ParameterError(f"neural_torque: project must be one of {', '.join(PROJECTIONS)}, "
                                  f"found {self.project!r}")  # fmt: skip
-
-    @property
-    def awaits_record(self) -> bool:
-        return not self.center  # adapt_to sets the input scaling
         if isinstance(self.hidden, bool) or not isinstance(self.hidden, int) or self.hidden < 1:
             raise ParameterError(f"neural_torque: hidden must be a positive integer, "
                                  f"found {self.hidden!r}")  # fmt: skip
@@ -158,6 +154,10 @@ class NeuralTorque(AbstractEffect, AbstractTorque):
                                      f"{', '.join(NN_INPUTS[self.inputs])}), found {len(value)}")
         if self.scale and min(self.scale) <= 0:
             raise ParameterError(f"neural_torque: scale must be positive, found {self.scale}")
+
+    @property
+    def awaits_record(self) -> bool:
+        return not self.center  # adapt_to sets the input scaling
 
     @property
     def input_names(self) -> tuple[str, ...]:

@@ -120,6 +120,9 @@ def test_bad_input_is_refused_before_any_fit(tmp_path):
         discover(rec, tmp_path, base_effects=["yaw:thrust_tilt"], priors={"a_yaw": 3.0})
     with pytest.raises(ParameterError, match=r"'a_yaw' must be in \[0, 2\], found 3"):  # a candidate's
         discover(rec, tmp_path, candidates=["yaw:thrust_tilt"], priors={"a_yaw": 3.0})
+    for term in ("gp_torque", "neural_torque"):  # crashed in the sparse regression (no features)
+        with pytest.raises(ParameterError, match=f"{term}.yaw. is a discrepancy term"):
+            discover(rec, tmp_path, candidates=["yaw:torque_offset", f"yaw:{term}"])
 
 
 def _csv(tmp_path):

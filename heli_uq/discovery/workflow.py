@@ -257,7 +257,11 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     build_model(base_effects, where="base_effects")  # validates names
     vocabulary = None if candidates is None else list(candidates)
     if vocabulary is not None:
-        build_model(vocabulary, where="candidates")
+        discrepancy = [t.label for t in build_model(vocabulary, where="candidates").effects if t.record_keys]
+        if discrepancy:  # no physical name to give, and no feature for the sparse regression
+            raise ParameterError(f"candidates: {', '.join(discrepancy)} is a discrepancy term set up from "
+                                 "the record, not a named effect; fit it with `heli-uq sample` (it may be "
+                                 "in the base model)")  # fmt: skip
     changes = checked_priors(base_effects + candidate_effects(base_effects, vocabulary), priors)
     fit_w, score_w, (refit_train, refit_test) = _windows(record, window, train, test)
     out = pathlib.Path(out_dir)

@@ -236,3 +236,37 @@ def test_cli_identifiability_refuses_a_posterior_of_another_model_in_one_line(tm
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1
     assert '"length_scale": 0.15' in err and '"length_scale": 0.3' in err
+
+
+#: Relative tolerance of a sample variance from PRECISION_DRAWS draws (its sd is sqrt(2/n) = 0.6 %).
+VARIANCE_RTOL = 0.03
+PRECISION_DRAWS = 50_000
+
+
+def test_laplace_draws_of_an_ill_conditioned_precision_have_its_inverse_as_covariance():
+    """The report's Laplace draws come from ``F + prior precision`` without inverting it.
+    Inverted, a network model's (condition ~1e16) gave a covariance numpy called "not
+    positive semi-definite", and draws from it.  Here the precision of a rank-one Fisher
+    matrix of size 1e12 plus a unit prior: along the data direction the variance is
+    1 / (1e12 + 1), across it 1."""
+    import warnings
+
+    from heli_uq.identifiability.fisher import precision_draws
+
+    rng = np.random.default_rng(0)
+    q, _ = np.linalg.qr(rng.standard_normal((4, 4)))
+    data, other = q[:, 0], q[:, 1:]
+    precision = 1e12 * np.outer(data, data) + np.eye(4)
+    mean = np.array([1.0, -2.0, 0.5, 3.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        draws = precision_draws(mean, precision, PRECISION_DRAWS, seed=1)
+    centred = draws - mean
+    np.testing.assert_allclose(np.var(centred @ data), 1.0 / (1e12 + 1.0), rtol=VARIANCE_RTOL)
+    np.testing.assert_allclose(np.var(centred @ other, axis=0), 1.0, rtol=VARIANCE_RTOL)
+    np.testing.assert_allclose(draws.mean(axis=0), mean, atol=5 * np.sqrt(1.0 / PRECISION_DRAWS))
+    # a general precision: the draws' covariance is its inverse
+    a = rng.standard_normal((4, 4))
+    precision = a @ a.T + 0.5 * np.eye(4)
+    cov = np.cov(precision_draws(np.zeros(4), precision, PRECISION_DRAWS, seed=2), rowvar=False)
+    np.testing.assert_allclose(cov @ precision, np.eye(4), atol=0.05)

@@ -25,7 +25,7 @@ from heli_uq.inference.levenberg import masked_least_squares
 from heli_uq.probability.likelihood import loss_v, whitened_residuals
 from heli_uq.probability.noise import ERROR_MODELS
 
-__all__ = ["WhitenedResiduals", "estimate_noise", "masked_least_squares", "LikelihoodFit",
+__all__ = ["precision_draws", "WhitenedResiduals", "estimate_noise", "masked_least_squares", "LikelihoodFit",
            "fit_likelihood", "FisherResult", "fisher_information"]  # fmt: skip
 
 #: Residual scales [rad] (theta, psi) of the first least-squares stage, before the noise is estimated.
@@ -200,3 +200,12 @@ def fisher_information(residuals: WhitenedResiduals, w) -> FisherResult:
     cond = float(lam[0] / lam[-1]) if lam[-1] > 0 else float("inf")
     return FisherResult(eigenvalues=lam, eigenvectors=v, condition_number=cond, rank=rank,
                         standard_errors=se, correlation=corr, covariance=cov)  # fmt: skip
+
+
+def precision_draws(mean: np.ndarray, precision: np.ndarray, n: int, seed: int) -> np.ndarray:
+    """``n`` draws (n, d) of ``N(mean, precision^-1)`` from the eigendecomposition of the
+    precision, which is never inverted: inverting ``F + prior precision`` of a network
+    model (condition ~1e16) gave a covariance that was not positive semi-definite."""
+    lam, vec = np.linalg.eigh(0.5 * (precision + precision.T))
+    z = np.random.default_rng(seed).standard_normal((n, mean.size))
+    return mean + (z / np.sqrt(lam)) @ vec.T

@@ -32,7 +32,7 @@ import numpy as np
 
 from heli_uq.data.record import Experiment
 from heli_uq.errors import ParameterError
-from heli_uq.identifiability.fisher import fisher_information, fit_likelihood
+from heli_uq.identifiability.fisher import fisher_information, fit_likelihood, precision_draws
 from heli_uq.identifiability.profiles import THRESHOLD_95, classify, profile_likelihood
 from heli_uq.identifiability.structural import ParameterVector, random_points, structural_analysis
 from heli_uq.inference import least_squares_fit, start_parameters
@@ -323,9 +323,7 @@ def identifiability_report(record: Experiment, out_dir, *, model: HeliModel | No
         draws = draws_in_w(posterior, pv)
         source = "MCMC draws of the given posterior"
     else:
-        precision = np.diag(1.0 / prior_sd**2)
-        cov = np.linalg.inv(_fisher_matrix(fim) + precision)
-        draws = np.random.default_rng(seed).multivariate_normal(fit.w, cov, LAPLACE_DRAWS)
+        draws = precision_draws(fit.w, _fisher_matrix(fim) + np.diag(1.0 / prior_sd**2), LAPLACE_DRAWS, seed)
         source = "Laplace approximation (F + prior precision)^-1 at the fit (no posterior given)"
     cov_post = np.cov(draws, rowvar=False)
     per, along = contraction(cov_post, prior_sd, null_vectors)

@@ -259,7 +259,7 @@ def test_cli_identifiability_reads_a_gp_posterior_on_the_model_it_was_fitted_wit
     r = json.loads((out / "identifiability.json").read_text())
     fitted = {n for n in r["parameters"] if n.startswith("gp_")}
     stored = set(az.from_netcdf(post / "posterior.nc").posterior.data_vars)
-    assert fitted == {"gp_tau_yaw", "gp_f_0_yaw", "gp_z_1_yaw"} and fitted <= stored  # a fitted pair, a new one
+    assert fitted == {"gp_tau_yaw", "gp_f_0_yaw", "gp_z_1_yaw"} and fitted <= stored  # fitted pair, new one
     assert r["bayesian"]["source"] == "MCMC draws of the given posterior"
 
 

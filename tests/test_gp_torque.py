@@ -256,6 +256,12 @@ def test_a_users_priors_from_the_unadapted_model_are_kept_and_completed():
     value_names = [n for n in pr.model.names if n.startswith(("gp_f_", "gp_z_"))]
     assert len(value_names) == pr.model.effects[-1].n_pairs > 0
     assert list(pr.priors.params) == list(pr.model.names)
+    # a pair's value is not a name before the record is read: the refusal says why
+    with pytest.raises(ParameterError, match=r"unknown name 'gp_f_0_yaw'.*gp_torque\(yaw\) gets more "
+                                             "parameters from the record"):  # fmt: skip
+        PriorSet.default(model).updated(model, {"gp_f_0_yaw": Prior("fixed", 0.01)})
+    with pytest.raises(ParameterError, match=r"unknown name 'bogus'; expected one of [^(]*$"):
+        PriorSet.default(build_model([])).updated(build_model([]), {"bogus": Prior("fixed", 0.01)})
 
 
 def test_fixing_the_amplitude_at_zero_is_one_clear_line_in_the_centred_form(tmp_path, capsys):

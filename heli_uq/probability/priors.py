@@ -127,8 +127,11 @@ class PriorSet:
                                          f"found {prior.describe()}")  # fmt: skip
                 noise[name] = prior
             else:
+                waiting = [t.label for t in model.effects if t.awaits_record]
+                later = (f" ({', '.join(waiting)} gets more parameters from the record, which "
+                         "take their declared priors)") if waiting else ""  # fmt: skip
                 raise ParameterError(f"{where}: unknown name {name!r}; expected one of "
-                                     f"{', '.join(self.names)}")  # fmt: skip
+                                     f"{', '.join(self.names)}{later}")  # fmt: skip
         return PriorSet(params, x0, noise)
 
     def draw(self, model: HeliModel, rng, shape=()) -> dict:

@@ -207,5 +207,6 @@ def precision_draws(mean: np.ndarray, precision: np.ndarray, n: int, seed: int) 
     precision, which is never inverted: inverting ``F + prior precision`` of a network
     model (condition ~1e16) gave a covariance that was not positive semi-definite."""
     lam, vec = np.linalg.eigh(0.5 * (precision + precision.T))
+    lam = np.maximum(lam, np.finfo(float).eps * lam.max())  # round-off below 0: a direction barely held
     z = np.random.default_rng(seed).standard_normal((n, mean.size))
     return mean + (z / np.sqrt(lam)) @ vec.T

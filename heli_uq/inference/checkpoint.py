@@ -83,11 +83,11 @@ class Checkpoint:
             (one line naming each differing setting with its saved and new value).
         """
         why = self.obstacle(manifest)
-        if why is not None and not why.startswith("other settings"):
-            raise ParameterError(f"resume: {why} in {self.directory}; start the run without resuming")
-        if why is not None:
+        if why is not None and self.manifest() is not None and (self.directory / _START).exists():
             raise ParameterError(f"resume: the run in {self.directory} was made with {why}; give the "
                                  "same settings, or start again without resuming")  # fmt: skip
+        if why is not None:
+            raise ParameterError(f"resume: {why} in {self.directory}; start the run without resuming")
         with open(self.directory / _START, "rb") as fh:
             return pickle.load(fh)["start"]
 

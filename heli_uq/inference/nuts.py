@@ -129,9 +129,9 @@ def _manifest(problem: Problem, **settings) -> dict:
     return run_manifest(problem, {"sampler": "nuts", **settings})
 
 
-def resume_obstacle(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000, draws: int = 1000,
-                    seed: int = 0, chunk: int = CHUNK, max_tree_depth: int = 8,
-                    target_accept: float = TARGET_ACCEPT, adapt_mass_matrix: bool = True) -> str | None:
+def resume_obstacle(problem: Problem, out_dir, *, chains: int, warmup: int, draws: int, seed: int,
+                    max_tree_depth: int, target_accept: float, adapt_mass_matrix: bool,
+                    chunk: int = CHUNK) -> str | None:
     """Why :func:`run_nuts` with these arguments cannot continue the run in ``out_dir/chunks``
     (:meth:`~heli_uq.inference.checkpoint.Checkpoint.obstacle`); None if ``resume=True`` would."""
     return Checkpoint(pathlib.Path(out_dir) / CHUNK_DIR).obstacle(_manifest(

@@ -63,15 +63,16 @@ def provenance(script: str, argv, wall_s: float) -> dict:
     wall_s : float
         Wall time of the run [s].
 
-    The package version is ``heli_uq.__version__`` (the installed metadata of an editable
-    install may lag behind it).
+    The package version is :func:`heli_uq.provenance.code_version`, the release with a
+    digest of the package's source (the installed metadata of an editable install may lag
+    behind the release, and the release stays the same across commits).
     """
     import jax
 
-    import heli_uq
+    from heli_uq.provenance import code_version
 
     argv = sys.argv[1:] if argv is None else list(argv)
-    return {"heli_uq": heli_uq.__version__, "jax": jax.__version__,
+    return {"heli_uq": code_version(), "jax": jax.__version__,
             "argv": [pathlib.Path(script).name, *argv], "wall_s": float(wall_s),
             "time": time.strftime("%Y-%m-%dT%H:%M:%S"), "cpu_count": os.cpu_count(),
             "machine_ref_s": machine_reference()}  # fmt: skip

@@ -11,7 +11,7 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "heli_uq"
 #: Layer of each top-level part of the package; a module may import only from its own layer
 #: or lower ones.  ``heli_uq/__init__.py`` (the curated facade) is exempt.
 LAYERS = {
-    "_jax_config": 0, "errors": 0, "io": 0, "figure": 0, "log": 0,
+    "_jax_config": 0, "errors": 0, "io": 0, "figure": 0, "log": 0, "provenance": 0,
     "data": 1, "model": 2, "simulation": 3, "probability": 4, "inference": 5,
     "identifiability": 6, "output": 7, "discovery": 8, "design": 8, "calibration": 8, "cli": 9, "executor": 0,
 }  # fmt: skip

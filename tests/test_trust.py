@@ -93,6 +93,54 @@ def test_resume_refuses_other_library_versions(record, tmp_path, monkeypatch):
         checkpoint.resume_info(run_manifest(problem, SETTINGS))
 
 
+def test_the_code_version_follows_the_package_source(tmp_path):
+    """The release number stays the same across commits; the digest of the package's source
+    (:mod:`heli_uq.provenance`) changes with any edit, rename or new file, and not with
+    compiled caches, so a manifest says which code made its draws."""
+    import shutil
+
+    import heli_uq
+    from heli_uq import provenance
+
+    package = Path(heli_uq.__file__).resolve().parent
+    copy = tmp_path / "heli_uq"
+    shutil.copytree(package, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    digest = provenance.source_digest(copy)
+    assert digest == provenance.source_digest()  # the imported package is these files
+    assert provenance.code_version() == f"{heli_uq.__version__}+src.{digest}"
+    assert manifest_module.library_versions()["heli_uq"] == provenance.code_version()
+
+    (copy / "model" / "__pycache__").mkdir(exist_ok=True)
+    (copy / "model" / "__pycache__" / "spec.cpython-311.pyc").write_bytes(b"\0compiled")
+    assert provenance.source_digest(copy) == digest
+    term = copy / "model" / "terms" / "deadband.py"
+    text = term.read_text()
+    term.write_text(text + "# an edit\n")
+    assert provenance.source_digest(copy) != digest
+    term.write_text(text)
+    assert provenance.source_digest(copy) == digest
+    term.rename(copy / "model" / "terms" / "deadband2.py")
+    assert provenance.source_digest(copy) != digest
+    (copy / "model" / "terms" / "deadband2.py").rename(term)
+    (copy / "model" / "rig_fit.json").write_text("{}")  # stored start values are code too
+    assert provenance.source_digest(copy) != digest
+
+
+def test_resume_refuses_edited_package_code(record, tmp_path, monkeypatch):
+    """Draws saved by other heli_uq code are not continued, though the release is the same,
+    and the message quotes both code versions."""
+    problem = make_problem(record, (0.0, 2.0), (2.0, 3.0), error="iid")
+    checkpoint = Checkpoint(tmp_path / "chunks")
+    checkpoint.start_new({}, run_manifest(problem, SETTINGS))
+    import heli_uq
+
+    edited = f"{heli_uq.__version__}+src.{'0' * 12}"
+    monkeypatch.setattr(manifest_module, "code_version", lambda: edited)
+    with pytest.raises(ParameterError, match=r'heli_uq version "[^"]+\+src\.[0-9a-f]{12}" -> "' + edited.replace("+", r"\+")) as err:
+        checkpoint.resume_info(run_manifest(problem, SETTINGS))
+    assert "\n" not in str(err.value)
+
+
 def test_manifest_train_window_in_seconds(record):
     problem = make_problem(record, (0.5, 2.0), (2.0, 3.0), error="iid")
     m = run_manifest(problem, SETTINGS)

@@ -52,6 +52,7 @@ from heli_uq.log import progress_log
 from heli_uq.model import TABLE1, HeliModel, Prior
 from heli_uq.probability import PriorSet, make_problem
 from heli_uq.probability.priors import SIGMA_PRIOR, X0_ANGLE_SD, X0_RATE_SD
+from heli_uq.provenance import code_version
 from heli_uq.simulation import SYNTHETIC_X0, synthetic_experiment
 
 __all__ = ["SBCSettings", "study_priors", "draw_replicate", "run_replicate", "run_sbc",
@@ -126,9 +127,7 @@ def draw_replicate(r: int, priors: PriorSet, duration: float, model: HeliModel =
 
 
 def _provenance(wall_s: float) -> dict:
-    import heli_uq
-
-    return {"heli_uq": heli_uq.__version__, "jax": jax.__version__, "wall_s": float(wall_s),
+    return {"heli_uq": code_version(), "jax": jax.__version__, "wall_s": float(wall_s),
             "time": time.strftime("%Y-%m-%dT%H:%M:%S")}  # fmt: skip
 
 

@@ -6,18 +6,19 @@ the training and test windows, the model description, the priors, the error mode
 coordinates, the substeps; :func:`heli_uq.probability.problem.fingerprint`), the
 sampler's settings (sampler, chains, warm-up, draws, chunk, target acceptance, tree
 depth, mass-matrix adaptation, seed...) and the versions of the package and of the
-libraries whose numerics the draws depend on.  Resuming compares the saved manifest with
+libraries whose numerics the draws depend on (heli_uq's with a digest of its source,
+:mod:`heli_uq.provenance`).  Resuming compares the saved manifest with
 the one of the new call and refuses any difference, naming every differing setting
 (:func:`mismatch_message`), so old draws are never reused under new settings.
 """
 
 from __future__ import annotations
 
-import importlib
 import importlib.metadata
 import json
 
 from heli_uq.probability.problem import Problem, fingerprint
+from heli_uq.provenance import code_version
 
 __all__ = ["MANIFEST_FILE", "LIBRARIES", "library_versions", "run_manifest", "differences",
            "mismatch_message"]  # fmt: skip
@@ -32,8 +33,10 @@ _QUOTE_MAX = 32
 
 def library_versions() -> dict[str, str | None]:
     """``{distribution: version}`` of :data:`LIBRARIES` (None if not installed); heli_uq's
-    own from ``heli_uq.__version__`` (an editable install's metadata can be stale)."""
-    out = {"heli_uq": importlib.import_module("heli_uq").__version__}
+    own is :func:`heli_uq.provenance.code_version`, the release with a digest of the
+    package's source (the release number alone stays the same across commits, and an
+    editable install's metadata can be stale), so a resume under edited code is refused."""
+    out = {"heli_uq": code_version()}
     for name in LIBRARIES[1:]:
         try:
             out[name] = importlib.metadata.version(name)

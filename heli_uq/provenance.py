@@ -54,8 +54,8 @@ def _package_digest() -> str:
 
 def _digest(root: pathlib.Path) -> str:
     h = hashlib.sha256()
-    files = sorted(p for p in root.rglob("*")
-                   if p.suffix in SOURCE_SUFFIXES and p.is_file() and "__pycache__" not in p.parts)  # fmt: skip
+    files = sorted(p for p in root.rglob("*") if p.suffix in SOURCE_SUFFIXES and p.is_file()
+                   and "__pycache__" not in p.parts)  # fmt: skip
     for path in files:
         rel = path.relative_to(root).as_posix().encode()
         data = path.read_bytes()

@@ -3,6 +3,7 @@ range of simulations, memory limits, interrupts, bounded outputs, messages."""
 
 import json
 import logging
+import re
 from pathlib import Path
 
 import numpy as np
@@ -136,7 +137,8 @@ def test_resume_refuses_edited_package_code(record, tmp_path, monkeypatch):
 
     edited = f"{heli_uq.__version__}+src.{'0' * 12}"
     monkeypatch.setattr(manifest_module, "code_version", lambda: edited)
-    with pytest.raises(ParameterError, match=r'heli_uq version "[^"]+\+src\.[0-9a-f]{12}" -> "' + edited.replace("+", r"\+")) as err:
+    quoted = r'heli_uq version "[^"]+\+src\.[0-9a-f]{12}" -> "' + re.escape(edited) + '"'
+    with pytest.raises(ParameterError, match=quoted) as err:
         checkpoint.resume_info(run_manifest(problem, SETTINGS))
     assert "\n" not in str(err.value)
 

@@ -9,6 +9,7 @@ import dataclasses
 import json
 import re
 
+import numpy as np
 import pytest
 
 from heli_uq.cli.main import main
@@ -235,6 +236,41 @@ def test_cli_cold_starts_override_the_budget(tmp_path, monkeypatch):
     assert seen == [dataclasses.replace(BUDGETS["full"], cold_starts=3), "quick"]
 
 
+def test_the_crps_gain_is_ranked_beside_the_score_and_named_where_the_scores_disagree():
+    """Each candidate row carries how much lower its blocked CRPS is than the current model's,
+    with the blocks' SE (a stored fit without the CRPS: None); the report names a candidate
+    the log density scores below the base but the CRPS prefers by 2 SE, not one the CRPS
+    prefers by less, and the decision does not change."""
+    from heli_uq.discovery.decide import choose, rank
+    from heli_uq.discovery.report_page import _closer_lines
+
+    n_scored, n_fit = 4000, 9100
+    base = {"block_scores": [0.0] * 4, "block_crps": [100.0, 120.0, 90.0, 110.0], "map_value": 0.0,
+            "map": {"K": 1.0}, "score": _gap_record(0.91, 0.95), "fit": _gap_record(0.08, 0.28),
+            "seconds": 1.0}
+
+    def res(scores, crps, **kw):
+        out = {**base, "block_scores": scores, "map_value": -500.0, "map": {"K": 1.0, "F": 0.1}, **kw}
+        out.pop("block_crps")
+        return {**out, "block_crps": crps} if crps is not None else out
+    results = {"yaw:f": res([-5000.0] * 4, [60.0, 75.0, 50.0, 80.0]),   # sharp and closer
+               "yaw:g": res([-10.0] * 4, [99.0, 121.0, 89.0, 110.0]),  # CRPS gain within its SE
+               "yaw:h": res([-1.0] * 4, None)}  # stored before the CRPS was kept
+    rows = rank(results, base, n_scored, n_fit)
+    by = {r["effect"]: r for r in rows}
+    d = np.array(base["block_crps"]) - np.array(results["yaw:f"]["block_crps"])
+    assert by["yaw:f"]["crps_gain"] == pytest.approx(d.sum())
+    assert by["yaw:f"]["crps_gain_se"] == pytest.approx(np.sqrt(4) * np.std(d, ddof=1))
+    assert by["yaw:h"]["crps_gain"] is None and by["yaw:h"]["crps_gain_se"] is None
+    for r in rows:
+        r["added"], r["step"], r["axis"] = [r["effect"]], 1, "yaw"
+    assert choose(rows, results, n_scored, n_fit) is None  # the log density decides
+    (_, line) = _closer_lines(rows, base["score"], n_scored)
+    assert "yaw:f (yaw)" in line and "yaw:g" not in line and "yaw:h" not in line
+    assert f"CRPS {d.sum() / n_scored:.3g} ± " in line and "rad per sample lower" in line
+    assert "only the log density decides" in line
+
+
 def test_the_report_names_candidates_closer_than_the_base_yet_scored_below_it():
     """A candidate whose held-out mean simulation is much closer (V < 0.8 x the base's) but
     whose score is negative is named (the rig's yaw friction + offset on 0-91 s); a closer
@@ -251,9 +287,9 @@ def test_the_report_names_candidates_closer_than_the_base_yet_scored_below_it():
     rows = [cand("coulomb_friction+torque_offset", 0.40, -21079.0), cand("deadband", 0.40, 55.0),
             cand("torque_offset", near, -78.0), cand("quadratic_drag", 0.40, -10.0, step=2),
             {"effect": "deadband", "axis": "pitch", "step": 1, "score": None, "error": "failed"}]  # fmt: skip
-    (_, line) = _closer_lines(rows, base)
+    (_, line) = _closer_lines(rows, base, 4000)
     named = "coulomb_friction+torque_offset (yaw): V 0.4 against the base's 0.91 rad^2, score -21079 nats"
     assert named in line
     assert line.count("nats") == 1  # only that one
     assert "deadband" not in line and "quadratic_drag" not in line
-    assert _closer_lines(rows[1:], base) == []
+    assert _closer_lines(rows[1:], base, 4000) == []

@@ -38,7 +38,7 @@ import time
 import numpy as np
 
 from heli_uq.data import Experiment
-from heli_uq.discovery.score import MIN_BLOCKS, block_scores, gap_metrics, input_blocks
+from heli_uq.discovery.score import MIN_BLOCKS, block_crps, block_scores, gap_metrics, input_blocks
 from heli_uq.errors import ParameterError
 from heli_uq.inference import constrain_draws, importance_resample, prepare_start
 from heli_uq.inference.laplace_sampler import PARETO_K_MAX
@@ -286,7 +286,8 @@ def score_fitted(fitted: Fitted, task: FitTask) -> dict:
         ``effects``, ``map`` (physical parameters and initial state), ``n_fitted`` (the
         coordinates the MAP fitted: free parameters, initial state and error scales), ``map_value``,
         ``map_decrement``, ``substeps``, ``fit`` and ``score`` gap metrics (fitting and
-        held-out window), ``block_scores`` [nats] on the held-out window, ``laplace``
+        held-out window), ``block_scores`` [nats] and ``block_crps`` [rad] on the held-out
+        window (:mod:`heli_uq.discovery.score`), ``laplace``
         (the importance resampling: ``pareto_k``, ``ess``, ``distinct``, ``predictive``),
         ``seconds``.
     """
@@ -303,5 +304,6 @@ def score_fitted(fitted: Fitted, task: FitTask) -> dict:
     blocks = input_blocks(problem.u[c:d], problem.dt, min_blocks=MIN_BLOCKS)
     out["block_scores"] = block_scores(fitted.y_sim[:, c:d], fitted.sigma, problem.y[c:d],
                                        blocks).tolist()  # fmt: skip
+    out["block_crps"] = block_crps(fitted.y_pred[:, c:d], problem.y[c:d], blocks).tolist()
     out["seconds"] = fitted.seconds + time.perf_counter() - t0
     return out

@@ -31,7 +31,10 @@ __all__ = ["rank", "pairs_to_fit", "choose"]
 def rank(results: dict, reference: dict, n_scored: int, n_fit: int) -> list[dict]:
     """Candidates with their score difference to ``reference`` and its SE, best first;
     ``support``: their BIC-penalised fitting-window log posterior less ``reference``'s
-    [nats] (:func:`_training_support`), ``supported``: it is positive."""
+    [nats] (:func:`_training_support`), ``supported``: it is positive; ``crps_gain``,
+    ``crps_gain_se``: how much lower their held-out CRPS is than ``reference``'s, summed
+    over the blocks [rad] (positive: better; reported, it does not decide; None for a
+    stored fit made before the CRPS was kept)."""
     rows, floor = [], _training_support(reference, n_fit)
     for key, res in results.items():
         if "error" in res:
@@ -39,16 +42,28 @@ def rank(results: dict, reference: dict, n_scored: int, n_fit: int) -> list[dict
             continue
         diff, se = compare(res["block_scores"], reference["block_scores"])
         support = _training_support(res, n_fit) - floor
+        crps = _crps_gain(res, reference)
         rows.append({"effect": key, "score": diff, "score_se": se,
                      "score_per_sample": diff / n_scored,
                      "passes": passes(res["block_scores"], reference["block_scores"], n_scored),
                      "held_out": res["score"], "fit": res["fit"], "map_value": res["map_value"],
                      "laplace": res.get("laplace"), "seconds": res["seconds"],
                      "support": float(support), "supported": bool(support > 0),
+                     "crps_gain": crps[0], "crps_gain_se": crps[1],
                      "reused": bool(res.get("reused")),
                      **({"carried": res["carried"]} if res.get("carried") else {})})  # fmt: skip
     rows.sort(key=lambda r: -np.inf if r["score"] is None else -r["score"])
     return rows
+
+
+def _crps_gain(result: dict, reference: dict) -> tuple[float | None, float | None]:
+    """``(reference's CRPS - result's, its SE)`` over the blocks [rad]
+    (:func:`~heli_uq.discovery.score.compare` of the negated block CRPS); ``(None, None)``
+    when either lacks it or a block is not scored."""
+    if "block_crps" not in result or "block_crps" not in reference:
+        return None, None
+    gain, se = compare(-np.asarray(result["block_crps"]), -np.asarray(reference["block_crps"]))
+    return (gain, se) if np.isfinite(gain) and np.isfinite(se) else (None, None)
 
 
 def pairs_to_fit(rows: list[dict], top: int, anchors: int) -> list[tuple[str, str]]:

@@ -92,8 +92,8 @@ def _candidate_rows(rows: list[dict]) -> list[dict]:
         axes = sorted({e.split(":")[0] for e in r["added"]})
         row = {"effect": "+".join(kinds), "axis": "+".join(axes), "score": r["score"],
                "score_se": r["score_se"], "step": r["step"], "model": r["effect"]}  # fmt: skip
-        for k in ("score_per_sample", "passes", "support", "supported", "tied", "chosen_by", "held_out",
-                  "fit", "laplace", "seconds", "reused", "carried", "error"):
+        for k in ("score_per_sample", "passes", "support", "supported", "crps_gain", "crps_gain_se", "tied",
+                  "chosen_by", "held_out", "fit", "laplace", "seconds", "reused", "carried", "error"):
             if k in r:
                 row[k] = r[k]
         out.append(row)

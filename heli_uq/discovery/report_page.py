@@ -10,7 +10,7 @@ import pathlib
 import numpy as np
 
 from heli_uq.data import unseen_inputs
-from heli_uq.discovery.score import GAP_KEYS
+from heli_uq.discovery.score import GAP_KEYS, MARGIN_SE
 
 __all__ = ["report_page", "gap_warnings", "parameter_text", "CLOSER_V_FRACTION"]
 
@@ -56,20 +56,41 @@ def _fmt_gap(g: dict) -> str:
     return " | ".join(f"{g[k]:.3f}" if "rmse" in k or k == "V" else f"{g[k]:.0%}" for k in GAP_KEYS)
 
 
-def _closer_lines(candidates: list[dict], base_score: dict) -> list[str]:
-    """A paragraph on the first-step candidates whose held-out mean simulation is much closer
-    to the data than the base model's (V below :data:`CLOSER_V_FRACTION` of its) but whose
-    held-out score is below the base's: their bands are narrower than their misses."""
+def _crps_better(c: dict) -> bool:
+    """The candidate's held-out CRPS beats the current model's by :data:`MARGIN_SE` SE."""
+    return c.get("crps_gain") is not None and c["crps_gain"] > MARGIN_SE * c["crps_gain_se"]
+
+
+def _crps_text(c: dict, n_scored: int) -> str:
+    """``"CRPS 0.246 ± 0.089 rad per sample lower"`` (empty without a CRPS gain)."""
+    if c.get("crps_gain") is None:
+        return ""
+    word = "lower" if c["crps_gain"] > 0 else "higher"
+    return (f", CRPS {abs(c['crps_gain']) / n_scored:.3g} ± {c['crps_gain_se'] / n_scored:.2g} rad "
+            f"per sample {word}")
+
+
+def _closer_lines(candidates: list[dict], base_score: dict, n_scored: int) -> list[str]:
+    """A paragraph on the first-step candidates whose held-out score is below the base's
+    although they predict better by another measure: their held-out mean simulation is much
+    closer to the data (V below :data:`CLOSER_V_FRACTION` of the base's), or their CRPS is
+    lower by :data:`~heli_uq.discovery.score.MARGIN_SE` SE.  Their bands are narrower than
+    their misses."""
     closer = [c for c in candidates if c.get("step") == 1 and c.get("score") is not None and c["score"] < 0
-              and c["held_out"]["V"] < CLOSER_V_FRACTION * base_score["V"]]  # fmt: skip
+              and (c["held_out"]["V"] < CLOSER_V_FRACTION * base_score["V"] or _crps_better(c))]  # fmt: skip
     if not closer:
         return []
     names = "; ".join(f"{c['effect']} ({c['axis']}): V {c['held_out']['V']:.3g} against the base's "
-                      f"{base_score['V']:.3g} rad^2, score {c['score']:+.0f} nats"
+                      f"{base_score['V']:.3g} rad^2, score {c['score']:+.0f} nats{_crps_text(c, n_scored)}"
                       for c in closer)  # fmt: skip
+    crps = (" The CRPS, a proper score that charges a miss by its size rather than by its square in "
+            "units of the band, prefers "
+            + ("them" if all(map(_crps_better, closer)) else "those it beats by 2 SE")
+            + "; only the log density decides (its margin is calibrated on records without a hidden "
+            "effect; the CRPS is not)." if any(map(_crps_better, closer)) else "")  # fmt: skip
     return ["", f"**Closer, yet scored below the base:** {names}. Their mean simulation is nearer the "
             "held-out data, but their predictive bands are narrower than their misses, and the log "
-            "predictive density penalises a confident miss more than the base model's wider band."]
+            "predictive density penalises a confident miss more than the base model's wider band." + crps]
 
 
 def _unseen_lines(record, fit_window, score_window) -> list[str]:
@@ -85,6 +106,13 @@ def _unseen_lines(record, fit_window, score_window) -> list[str]:
     return ["", f"The scored window holds **{pairs} voltage pair(s) the fitting window never holds**, "
             f"{new.mean():.0%} of its samples: there a score measures extrapolation in the inputs "
             "(a gain error or an input nonlinearity is not constrained by the fit)."]
+
+
+def _crps_cell(c: dict, n_scored: int) -> str:
+    """``"+0.246 ± 0.089"`` per sample [rad], or ``"–"`` (a fit stored before the CRPS was kept)."""
+    if c.get("crps_gain") is None:
+        return "–"
+    return f"{c['crps_gain'] / n_scored:+.3g} ± {c['crps_gain_se'] / n_scored:.2g}"
 
 
 def _fit_seconds(row: dict) -> str:
@@ -167,24 +195,26 @@ def report_page(result, where, ranking, steps, base, budget, fit_window, score_w
               "*Support*: the fitting window's log posterior at the MAP, less 0.5 log(n) per "
               "parameter (BIC), minus the current model's [nats]; a candidate is added only if it "
               "passes the margin and this is positive. *Fit* gives *step N* for a model fitted as "
-              "a pair at step N and not fitted again.", "",
+              "a pair at step N and not fitted again. *CRPS gain*: how much lower the held-out "
+              "CRPS is than the current model's, per sample, with its SE [rad] (a second proper "
+              "score, reported; the log density decides).", "",
               "| step | effect | axis | score [nats] | SE | per sample | passes | support [nats] | "
-              "held-out RMSE pitch / yaw [rad] | held-out V | Pareto k (ESS) | fit [s] |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+              "CRPS gain [rad] | held-out RMSE pitch / yaw [rad] | held-out V | Pareto k (ESS) | fit [s] |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for c in result["candidates"]:
         if c.get("score") is None:
             lines.append(f"| {c['step']} | {c['effect']} | {c['axis']} | failed: {c.get('error')} |"
-                         " | | | | | | | |")  # fmt: skip
+                         " | | | | | | | | |")  # fmt: skip
             continue
         held, imp = c["held_out"], c.get("laplace") or {}
         k = f"{imp['pareto_k']:.2f} ({imp['ess']:.0f})" if imp else "–"
         k += " *MAP*" if imp.get("predictive") == "map" else ""
         lines.append(f"| {c['step']} | {c['effect']} | {c['axis']} | {c['score']:+.0f} | {c['score_se']:.0f} "
                      f"| {c['score_per_sample']:+.3f} | {'yes' if c['passes'] else 'no'} | "
-                     f"{c['support']:+.0f} | "
+                     f"{c['support']:+.0f} | {_crps_cell(c, n_scored)} | "
                      f"{held['rmse_theta']:.3f} / {held['rmse_psi']:.3f} | {held['V']:.3f} | {k} | "
                      f"{_fit_seconds(c)} |")  # fmt: skip
-    lines += _closer_lines(result["candidates"], base["score"])
+    lines += _closer_lines(result["candidates"], base["score"], n_scored)
     lines += ["", "## 4. Steps", ""]
     for s in steps:
         what = ", ".join(s["added"]) if s["added"] else s.get("decision", "")

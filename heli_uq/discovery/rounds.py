@@ -22,8 +22,9 @@ __all__ = ["FIT_VERSION", "CandidateStore", "run_round", "task_signature"]
 #: Version of a stored candidate fit; a stored fit of another version is fitted again
 #: (2: the Laplace draws are importance-resampled before scoring, or the MAP's plug-in
 #: predictive when Pareto k rejects them; 3: a term's start grid adds a MAP start, e.g.
-#: a dead band between the record's voltage levels).
-FIT_VERSION = 3
+#: a dead band between the record's voltage levels; 4: the held-out CRPS is stored beside
+#: the log score).
+FIT_VERSION = 4
 
 
 def task_signature(record: Experiment, task: FitTask) -> str:

@@ -18,7 +18,7 @@ the elpd differences of ``arviz.compare``, with blocks in place of points).
 
 **CRPS, reported beside the score** (:func:`block_crps`).  The continuous ranked
 probability score of the predictive draws with errors, ``E|X - y| - E|X - X'| / 2`` per
-sample and angle [rad] (fair ensemble estimator, ``scoringrules.crps_ensemble``), summed
+sample and angle [rad] (the fair ensemble estimator, ``scoringrules.crps_ensemble``), summed
 per block over both angles; lower is better.  Both are proper scores; they differ in the
 tails.  The log density charges a miss by its square in units of the band, the CRPS by
 its size in radians, so a model whose mean is much closer but whose band is too narrow
@@ -119,8 +119,11 @@ def block_crps(y_pred: np.ndarray, y_obs: np.ndarray, blocks) -> np.ndarray:
     ok = np.all(np.isfinite(y_pred), axis=(1, 2))
     if ok.sum() < 2:
         return np.full(len(blocks), np.nan)
+    # the probability-weighted-moment form equals the fair estimator (Zamo & Naveau 2018) in
+    # O(S log S) per sample; the pairwise "fair" form held S x S differences (1.3 GB, 3.4 s
+    # for 100 draws of 4000 samples, against 19 MB and 0.05 s)
     crps = scoringrules.crps_ensemble(np.asarray(y_obs, dtype=float), y_pred[ok], m_axis=0,
-                                      estimator="fair")  # (N, 2)  # fmt: skip
+                                      estimator="pwm")  # (N, 2)  # fmt: skip
     return np.asarray([crps[a:b].sum() for a, b in blocks])
 
 

@@ -271,6 +271,25 @@ def test_the_crps_gain_is_ranked_beside_the_score_and_named_where_the_scores_dis
     assert "only the log density decides" in line
 
 
+def test_the_candidates_figure_shows_the_crps_gain_beside_the_score():
+    """A second panel holds each candidate's CRPS gain per sample (bar widths), in the same
+    rows as its score; without a CRPS in any row the figure keeps its one panel."""
+    from heli_uq.discovery.candidates_figure import candidates_figure
+
+    def row(effect, score, gain):
+        return {"effect": effect, "axis": "yaw", "step": 1, "score": score, "score_se": 50.0,
+                "passes": False, "crps_gain": gain, "crps_gain_se": None if gain is None else 100.0}
+
+    n = 4000
+    rows = [row("a", 24.0, -27.0), row("b", -20934.0, 992.0), row("c", -5.0, None)]
+    fig = candidates_figure(rows, n)
+    score_ax, crps_ax = fig.axes[:2]
+    widths = [bar.get_width() for bar in crps_ax.patches]
+    assert widths == pytest.approx([992.0 / n, -27.0 / n])  # rows drawn bottom-up; "c" has none
+    assert "CRPS" in crps_ax.get_xlabel() and "[rad]" in crps_ax.get_xlabel()
+    assert len(candidates_figure([dict(r, crps_gain=None) for r in rows], n).axes) == 1
+
+
 def test_the_report_names_candidates_closer_than_the_base_yet_scored_below_it():
     """A candidate whose held-out mean simulation is much closer (V < 0.8 x the base's) but
     whose score is negative is named (the rig's yaw friction + offset on 0-91 s); a closer

@@ -83,6 +83,6 @@ def _crps_panel(ax, rows: list[dict], n_scored: int, y: np.ndarray) -> None:
         ax.text(0, yi, " –", va="center", fontsize="x-small")
     ax.axvline(0, color="k", lw=0.8)
     ax.set_xlabel("held-out CRPS of the current model minus the candidate's,\nper sample [rad] (± 2 SE)")
-    ax.set_title("CRPS gain (a second proper score: reported, does not decide)", loc="left",
+    ax.set_title("CRPS gain (a second proper score;\nreported, does not decide)", loc="left",
                  fontsize="medium")  # fmt: skip
     ax.grid(True, axis="x", alpha=0.4)

@@ -3,7 +3,7 @@
 The package is laid out by stage; data flows one way and every subpackage imports only
 from the ones before it (``tests/test_layout.py`` checks this)::
 
-    errors, io, figure      base utilities
+    errors, io, figure      base utilities (provenance: which code made a result)
     data/                   rig records (Experiment, the published CSV, the real record)
     model/                  mechanics, torque terms, named effects, parameters, priors
     model/terms/            one file per term (a new effect is one new file there)

@@ -61,13 +61,20 @@ def _crps_better(c: dict) -> bool:
     return c.get("crps_gain") is not None and c["crps_gain"] > MARGIN_SE * c["crps_gain_se"]
 
 
-def _crps_text(c: dict, n_scored: int) -> str:
-    """``"CRPS 0.246 ± 0.089 rad per sample lower"`` (empty without a CRPS gain)."""
+def _crps_per_sample(c: dict, n_scored: int) -> tuple[float, float] | None:
+    """The candidate's CRPS gain and its SE per held-out sample [rad], or None (a fit stored
+    before the CRPS was kept)."""
     if c.get("crps_gain") is None:
+        return None
+    return c["crps_gain"] / n_scored, c["crps_gain_se"] / n_scored
+
+
+def _crps_text(c: dict, n_scored: int) -> str:
+    """``", CRPS 0.246 ± 0.089 rad per sample lower"`` (empty without a CRPS gain)."""
+    per = _crps_per_sample(c, n_scored)
+    if per is None:
         return ""
-    word = "lower" if c["crps_gain"] > 0 else "higher"
-    return (f", CRPS {abs(c['crps_gain']) / n_scored:.3g} ± {c['crps_gain_se'] / n_scored:.2g} rad "
-            f"per sample {word}")
+    return f", CRPS {abs(per[0]):.3g} ± {per[1]:.2g} rad per sample {'lower' if per[0] > 0 else 'higher'}"
 
 
 def _closer_lines(candidates: list[dict], base_score: dict, n_scored: int) -> list[str]:
@@ -83,11 +90,12 @@ def _closer_lines(candidates: list[dict], base_score: dict, n_scored: int) -> li
     names = "; ".join(f"{c['effect']} ({c['axis']}): V {c['held_out']['V']:.3g} against the base's "
                       f"{base_score['V']:.3g} rad^2, score {c['score']:+.0f} nats{_crps_text(c, n_scored)}"
                       for c in closer)  # fmt: skip
-    crps = (" The CRPS, a proper score that charges a miss by its size rather than by its square in "
-            "units of the band, prefers "
-            + ("them" if all(map(_crps_better, closer)) else "those it beats by 2 SE")
-            + "; only the log density decides (its margin is calibrated on records without a hidden "
-            "effect; the CRPS is not)." if any(map(_crps_better, closer)) else "")  # fmt: skip
+    crps = ""
+    if any(map(_crps_better, closer)):
+        which = "them" if all(map(_crps_better, closer)) else "those it beats by 2 SE"
+        crps = (" The CRPS, a proper score that charges a miss by its size rather than by its square "
+                f"in units of the band, prefers {which}; only the log density decides (its margin is "
+                "calibrated on records without a hidden effect; the CRPS is not).")
     return ["", f"**Closer, yet scored below the base:** {names}. Their mean simulation is nearer the "
             "held-out data, but their predictive bands are narrower than their misses, and the log "
             "predictive density penalises a confident miss more than the base model's wider band." + crps]
@@ -110,9 +118,8 @@ def _unseen_lines(record, fit_window, score_window) -> list[str]:
 
 def _crps_cell(c: dict, n_scored: int) -> str:
     """``"+0.246 ± 0.089"`` per sample [rad], or ``"–"`` (a fit stored before the CRPS was kept)."""
-    if c.get("crps_gain") is None:
-        return "–"
-    return f"{c['crps_gain'] / n_scored:+.3g} ± {c['crps_gain_se'] / n_scored:.2g}"
+    per = _crps_per_sample(c, n_scored)
+    return "–" if per is None else f"{per[0]:+.3g} ± {per[1]:.2g}"
 
 
 def _fit_seconds(row: dict) -> str:

@@ -24,7 +24,10 @@ Writes one JSON line per case to ``--out`` (default
 hidden parameter's 95 % interval holds the truth, the best candidate's score and the wall
 time; then prints the confusion table (truth -> named) of all lines in the file.  The
 margin of "none" (:data:`heli_uq.discovery.score.MARGIN_PER_SAMPLE`) is checked against the
-``none`` cases: their best candidate's score per held-out sample is printed.  Usage::
+``none`` cases: their best candidate's score per held-out sample is printed, and the
+candidate of largest CRPS gain (``best_crps``: per sample, its SE ratio and its fraction
+of the base's CRPS, what :data:`heli_uq.discovery.score.MARGIN_CRPS_FRACTION` is set
+from).  ``--score crps`` lets the CRPS decide (``heli-uq discover --score``).  Usage::
 
     python studies/discovery_confusion.py [--cases none yaw:coulomb_friction ...] [--seeds 1 2]
 """
@@ -150,7 +153,8 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
         windows = {} if args.no_split else {"train": (0.0, split), "test": (split, args.seconds)}
         res = discover(rec, tmp, **windows, budget=args.budget,
                        seed=seed, scheduler=args.scheduler, candidates=args.candidates,
-                       max_effects=max(1, len(model.effects)), priors=dict(args.fix))  # fmt: skip
+                       max_effects=max(1, len(model.effects)), priors=dict(args.fix),
+                       score=args.score)  # fmt: skip
     added = {f"{a['axis']}:{a['effect']}": a["parameters"] for a in res["added"]}
     named = "+".join(added) or "none"
     covered = {}
@@ -163,13 +167,16 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
                 covered[p.name] = {"truth": truth[p.name], "ci95": ci,
                                    "covered": ci[0] <= truth[p.name] <= ci[1]}
     best = next((c for c in res["candidates"] if c.get("score") is not None), None)
+    by_crps = max((c for c in res["candidates"] if c.get("crps_gain") is not None),
+                  key=lambda c: c["crps_gain"], default=None)
     values = {p.name: truth[p.name] for term in model.effects for p in term.parameters()}
     return {"case": case, "inputs": inputs, "seed": seed, "hidden": values, "named": named,
             "correct": set(added) == set(case.split("+")) if added else case == "none",
             "covered": covered, "best": best and {k: best[k] for k in ("effect", "axis", "score",
                                                                         "score_se", "score_per_sample")},
+            "best_crps": by_crps and crps_facts(by_crps),
             "gap_before": res["gap_before"], "gap_after": res["gap_after"], "decision": res["decision"],
-            "budget": args.budget, "discover_s": time.perf_counter() - t0,
+            "budget": args.budget, "score": args.score, "discover_s": time.perf_counter() - t0,
             **({"base_jitter": args.base_jitter,
                 "base": {k: truth[k] for k in RIG_FIT}} if args.base_jitter else {}),
             **({"hidden_omega_s": args.hidden_omega_s}
@@ -178,6 +185,19 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
             **({"split": False} if args.no_split else {}),
             **({"fix": dict(args.fix)} if args.fix else {}),
             **({"refit": refit_facts(keep / "refit" / "summary.json")} if keep else {})}  # fmt: skip
+
+
+def crps_facts(c: dict) -> dict:
+    """The candidate of largest held-out CRPS gain (a row of ``discovery.json``): its gain
+    and SE per held-out sample [rad] (``crps_gain`` of :func:`heli_uq.discovery.decide.rank`
+    over the held-out samples), their ratio, and its log score per sample [nats]: what a
+    CRPS margin would be calibrated on."""
+    n_scored = c["score"] / c["score_per_sample"]  # both per candidate; never 0 in practice
+    return {"effect": c["effect"], "crps_gain_per_sample": c["crps_gain"] / n_scored,
+            "crps_gain_se_per_sample": c["crps_gain_se"] / n_scored,
+            "crps_z": c["crps_gain"] / c["crps_gain_se"] if c["crps_gain_se"] else None,
+            "crps_gain_fraction": c.get("crps_gain_fraction"),
+            "score_per_sample": c["score_per_sample"]}
 
 
 def refit_facts(path: pathlib.Path) -> dict | None:
@@ -209,6 +229,10 @@ def confusion(path) -> str:
     if nulls:
         lines.append(f"\nnull records: best candidate's score per held-out sample "
                      f"{', '.join(f'{x:+.4f}' for x in nulls)} nats")  # fmt: skip
+    crps = [r["best_crps"] for r in rows if r["case"] == "none" and r.get("best_crps")]
+    if crps:
+        gains = (f"{c['crps_gain_per_sample']:+.2e} rad ({c['crps_z']:+.1f} SE)" for c in crps)
+        lines.append("null records: largest CRPS gain per held-out sample " + ", ".join(gains))
     return "\n".join(lines)
 
 
@@ -265,6 +289,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", nargs="+", type=int, default=[1])
     ap.add_argument("--seconds", type=float, default=131.0)
     ap.add_argument("--budget", default="quick", choices=["quick", "full"])
+    ap.add_argument("--score", default="log", choices=["log", "crps"],
+                    help="the held-out score that decides (heli-uq discover --score)")
     ap.add_argument("--scheduler", default="local")
     ap.add_argument("--candidates", nargs="+", default=None, metavar="AXIS:EFFECT",
                     help="effects to try (default: every effect on each axis)")

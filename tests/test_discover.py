@@ -9,11 +9,13 @@ import dataclasses
 import json
 import re
 
+import matplotlib.colors
 import numpy as np
 import pytest
 
 from heli_uq.cli.main import main
 from heli_uq.discovery import DISCOVERY_KEYS, Budget, discover
+from heli_uq.discovery.score import MARGIN_CRPS_FRACTION
 from heli_uq.errors import ParameterError
 from heli_uq.io import atomic_write_text
 from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model
@@ -103,6 +105,14 @@ def test_discover_says_none_without_a_hidden_effect_and_reuses_fits(tmp_path):
     # the report's minutes exclude the reused fits, and it says so
     n = len(CANDIDATES)
     assert f"{n} of {n} candidate fits were reused" in (tmp_path / "report.md").read_text()
+    # the CRPS deciding: the same fits (they do not depend on the score), its own margin, its order
+    by_crps = discover(rec, tmp_path, log=lambda m: None, score="crps", **kwargs)
+    assert by_crps["effect"] == "none" and all(c["reused"] for c in by_crps["candidates"])
+    assert "by the calibrated margin of the held-out CRPS" in by_crps["decision"]
+    gains = [c["crps_gain"] for c in by_crps["candidates"]]
+    assert gains == sorted(gains, reverse=True)
+    assert all(c["crps_gain_fraction"] < MARGIN_CRPS_FRACTION for c in by_crps["candidates"])
+    assert "**the CRPS decides**" in (tmp_path / "report.md").read_text()
 
 
 def test_bad_input_is_refused_before_any_fit(tmp_path):
@@ -115,6 +125,8 @@ def test_bad_input_is_refused_before_any_fit(tmp_path):
         discover(rec, tmp_path, window=(0.0, 10.0))
     with pytest.raises(ParameterError, match="budget"):
         discover(rec, tmp_path, budget="huge")
+    with pytest.raises(ParameterError, match="score: expected one of log, crps, found 'brier'"):
+        discover(rec, tmp_path, score="brier")
     with pytest.raises(ParameterError, match="unknown name 'a_yaw'"):  # not a base model parameter
         discover(rec, tmp_path, priors={"a_yaw": 1.0})
     with pytest.raises(ParameterError, match=r"'a_yaw' must be in \[0, 2\], found 3"):
@@ -216,6 +228,31 @@ def test_none_says_when_the_best_lacks_the_fitting_window_s_support():
     assert "support" not in plain
 
 
+def test_under_the_crps_the_decision_gives_the_crps_gain_first():
+    """With ``--score crps`` the sentence leads with the CRPS gain per held-out sample and
+    gives the log density beside it (the rig's pair: worse by it), and "none" names the
+    CRPS's margin; a refit that failed its health checks is said so in the sentence (the
+    rig's pair: R-hat 1.31), not only in ``report.md``."""
+    from heli_uq.discovery.report import _decision
+
+    gap = {"test": _gap_record(0.02, 0.95)}
+    step = {"score": -20934.0, "score_se": 13648.0, "crps_gain": 992.0, "crps_gain_se": 356.0}
+    text = _decision(["yaw:coulomb_friction", "yaw:torque_offset"], [], [step], gap, gap, "crps", 4000)
+    assert text.startswith("Added coulomb_friction on yaw and torque_offset on yaw: held-out score a CRPS "
+                           "lower by 0.248 ± 0.089 rad per sample (log density -20934 ± 13648 nats)")
+    assert "+-20934" not in _decision(["yaw:x"], [], [step], gap, gap, "log", 4000)  # signed once
+    unhealthy = {"ok": False, "warnings": ["R-hat 1.31 > 1.01 (worst: omega_psi0): the chains disagree"]}
+    flagged = _decision(["yaw:x"], [], [step], gap, gap, "crps", 4000, unhealthy)
+    assert flagged.endswith("Warning: the NUTS refit failed its health checks (R-hat 1.31 > 1.01 (worst: "
+                            "omega_psi0): the chains disagree; refit/summary.json), so its intervals and "
+                            "coverage are not to be trusted.")
+    assert "Warning" not in _decision(["yaw:x"], [], [step], gap, gap, "crps", 4000, {"ok": True})
+    row = {"effect": "yaw:deadband", "passes": False, "supported": True, "support": 3.0, **step}
+    none = _decision([], [row], [], gap, gap, "crps", 4000)
+    assert none.startswith("none: no candidate effect beats the base model by the calibrated margin of "
+                           "the held-out CRPS; the best, yaw:deadband, scored a CRPS lower by 0.248")
+
+
 def test_cli_cold_starts_override_the_budget(tmp_path, monkeypatch):
     """``--cold-starts N`` runs the chosen budget with N cold starts per candidate; without
     it the budget is passed by name."""
@@ -288,6 +325,16 @@ def test_the_candidates_figure_shows_the_crps_gain_beside_the_score():
     assert widths == pytest.approx([992.0 / n, -27.0 / n])  # rows drawn bottom-up; "c" has none
     assert "CRPS" in crps_ax.get_xlabel() and "[rad]" in crps_ax.get_xlabel()
     assert len(candidates_figure([dict(r, crps_gain=None) for r in rows], n).axes) == 1
+    # the CRPS decided: its panel carries the pass colours and each row's margin tick
+    rows[1].update(passes=True, supported=True, crps_gain_fraction=0.35)
+    rows[0]["crps_gain_fraction"] = -27.0 / (992.0 / 0.35)  # the same current model
+    score_ax, crps_ax = candidates_figure(rows, n, "crps").axes[:2]
+    green, grey = matplotlib.colors.to_rgba("C2"), matplotlib.colors.to_rgba("0.6")
+    assert [bar.get_facecolor() for bar in crps_ax.patches] == [green, grey]
+    assert len({bar.get_facecolor() for bar in score_ax.patches}) == 1  # the log density's: reported
+    (ticks,) = [line for line in crps_ax.lines if line.get_label().startswith("margin")]
+    margin = MARGIN_CRPS_FRACTION * 992.0 / 0.35 / n  # 1 % of the current model's CRPS per sample
+    assert ticks.get_xdata() == pytest.approx([margin, margin])
 
 
 def test_the_report_names_candidates_closer_than_the_base_yet_scored_below_it():

@@ -752,3 +752,48 @@ def test_a_stored_fit_is_not_reused_under_other_library_versions(monkeypatch):
     for name in ("heli_uq", "jax", "numpyro"):
         monkeypatch.setattr(rounds, "library_versions", lambda n=name: {**library_versions(), n: "0.0.0"})
         assert rounds.task_signature(rec, task) != now, name
+
+
+def test_the_crps_decides_when_asked_with_its_own_margin():
+    """Under ``CRPS`` a model passes if its held-out CRPS is lower than the other's by
+    ``MARGIN_CRPS_FRACTION`` of it (and significantly); the rig's case, a candidate far
+    worse by the log density and much better by the CRPS, is chosen under the CRPS and
+    not under the log density, which chooses the candidate it prefers; a fit stored
+    without the CRPS never passes under it."""
+    from heli_uq.discovery.decide import choose, rank
+    from heli_uq.discovery.score import CRPS, LOG_DENSITY, MARGIN_CRPS_FRACTION, gain_text
+
+    n_scored, n_fit, blocks = 4000, 9000, 8
+    base_crps = np.full(blocks, 100.0)  # [rad] per block
+    current = {"block_scores": np.zeros(blocks), "block_crps": base_crps, "map_value": 0.0, "map": {"K": 0.1}}
+
+    def fitted(log_gain, crps_fraction, wobble=0.0):
+        crps = base_crps * (1 - crps_fraction) + wobble * np.linspace(-1, 1, blocks)
+        return {"block_scores": np.full(blocks, log_gain / blocks), "block_crps": crps,
+                "map_value": -100.0, "map": {"K": 0.1, "x": 1.0}, "score": {}, "fit": {"V": 0.1},
+                "seconds": 1.0}  # fmt: skip
+
+    above, below = 2 * MARGIN_CRPS_FRACTION, 0.5 * MARGIN_CRPS_FRACTION
+    assert CRPS.passes(fitted(0.0, above), current, n_scored)
+    assert not CRPS.passes(fitted(0.0, below), current, n_scored)  # every block better, under the margin
+    assert LOG_DENSITY.passes(fitted(4 * MARGIN_PER_SAMPLE * n_scored, 0.0), current, n_scored)
+    assert not LOG_DENSITY.passes(fitted(0.0, 0.5), current, n_scored)  # the log density ignores the CRPS
+    stored_before = {k: v for k, v in fitted(0.0, 0.5).items() if k != "block_crps"}
+    assert not CRPS.passes(stored_before, current, n_scored)
+
+    results = {"yaw:narrow": fitted(-20000.0, 0.35),  # the rig's pair: -21761 nats, CRPS 35 % lower
+               "yaw:wide": fitted(4 * MARGIN_PER_SAMPLE * n_scored, 0.005)}  # fmt: skip
+    picks = {}
+    for criterion in (LOG_DENSITY, CRPS):
+        rows = rank(results, current, n_scored, n_fit, criterion)
+        for r in rows:
+            r["added"] = [r["effect"]]
+        chosen = choose(rows, results, n_scored, n_fit, criterion)
+        picks[criterion.name] = (chosen["effect"], rows[0]["effect"])
+    assert picks == {"log": ("yaw:wide", "yaw:wide"), "crps": ("yaw:narrow", "yaw:narrow")}
+    row = next(r for r in rows if r["effect"] == "yaw:narrow")
+    assert row["crps_gain"] == pytest.approx(0.35 * base_crps.sum())
+    text = gain_text(row, "crps", n_scored)
+    assert text.startswith(f"a CRPS lower by {0.35 * base_crps.sum() / n_scored:.3g} ± 0")
+    assert text.endswith("rad per sample (log density -20000 ± 0 nats)")
+    assert gain_text(row, "log", n_scored) == "-20000 ± 0 nats"

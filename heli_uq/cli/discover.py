@@ -44,7 +44,8 @@ def cmd_discover(args) -> int:
     out = out_dir(args.out)
     result = discover(record, out, window=window, train=train, test=test, base_effects=base,
                       budget=budget, max_effects=args.max_effects, seed=args.seed,
-                      scheduler=args.scheduler, candidates=candidates, priors=priors)  # fmt: skip
+                      scheduler=args.scheduler, candidates=candidates, priors=priors,
+                      score=args.score)  # fmt: skip
     print(json.dumps({k: result[k] for k in ("effect", "axis", "parameters")}))
     print(f"wrote {out / 'discovery.json'}, report.md, bands_before.png, bands_after.png, "
           "residuals.png, candidates.png")  # fmt: skip
@@ -59,7 +60,7 @@ def add_parser(subparsers):
             "Fit the base model, locate where the data leave its predictive band, regress the\n"
             "torque the data imply on the effects vocabulary (pysindy), fit every candidate\n"
             "effect (and pairs of the best) on the fitting window, rank them by held-out\n"
-            "log predictive density in input-segment blocks, add the winner if it beats the\n"
+            "log predictive density (or CRPS) in input-segment blocks, add the winner if it beats the\n"
             "calibrated margin (else 'none'), refit with NUTS and compare before/after.\n\n"
             "Writes DIR/discovery.json, DIR/report.md, DIR/bands_before.png,\n"
             "DIR/bands_after.png, DIR/residuals.png, DIR/candidates.png, DIR/candidates/\n"
@@ -78,7 +79,9 @@ def add_parser(subparsers):
             "      yaw:coulomb_friction,yaw:torque_offset,yaw:thrust_tilt --fix a_yaw=1 --out out/tilt\n"
             "  heli-uq discover experimental --train 0:91 --test 91:131 --base-effects \\\n"
             "      yaw:coulomb_friction,yaw:torque_offset --candidates yaw:thrust_tilt,yaw:stiction \\\n"
-            "      --fix a_yaw=1 --out out/tilt_candidate   # a derived term offered at its fixed value\n\n"
+            "      --fix a_yaw=1 --out out/tilt_candidate   # a derived term offered at its fixed value\n"
+            "  heli-uq discover experimental --train 0:91 --test 91:131 --score crps --cold-starts 1 \\\n"
+            "      --candidates yaw:coulomb_friction,yaw:torque_offset --max-effects 2 --out out/crps\n\n"
             + EFFECTS_HELP
         ),
         formatter_class=Formatter,
@@ -98,6 +101,11 @@ def add_parser(subparsers):
     p.add_argument("--cold-starts", type=int, default=None, metavar="N",
                    help="MAP starts of each candidate from the model's start values, besides "
                         "those next to the current fit (default: the budget's, quick 0, full 1)")  # fmt: skip
+    p.add_argument("--score", choices=["log", "crps"], default="log",
+                   help="the held-out score that decides: the log predictive density (default), or "
+                        "the CRPS, which charges a miss by its size, not its square, and so does not "
+                        "prefer a wide band wrong everywhere to a narrow one wrong in one swing; both "
+                        "are reported and calibrated on null records")  # fmt: skip
     p.add_argument("--max-effects", type=int, default=1,
                    help="most effects to add, greedily, pairs considered (default: 1)")
     add_prior_options(p)  # of the base model's or a candidate's parameters; in every model that has them

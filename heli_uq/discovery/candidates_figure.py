@@ -1,26 +1,33 @@
 """``candidates.png`` of a discovery run: each candidate's held-out score against the
 current model, per held-out sample, with its uncertainty and the decision margin, and
-beside it the CRPS gain (:func:`heli_uq.discovery.score.block_crps`; reported, it does not
-decide), so a candidate the two proper scores disagree on stands out."""
+beside it the CRPS gain (:func:`heli_uq.discovery.score.block_crps`), so a candidate the
+two proper scores disagree on stands out.  The panel of the score that decided
+(``discover(score=...)``) carries the pass colours."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from heli_uq.discovery.score import MARGIN_PER_SAMPLE
+from heli_uq.discovery.score import MARGIN_CRPS_FRACTION, MARGIN_PER_SAMPLE
 from heli_uq.figure import new_figure
 
 __all__ = ["candidates_figure"]
 
+#: The pass colours' key (the deciding panel's title).
+KEY = ("green: passes the margin and the fitting window supports it;\n"
+       "orange: passes, not supported; grey: does not pass")
 
-def candidates_figure(cands: list[dict], n_scored: int):
+
+def candidates_figure(cands: list[dict], n_scored: int, criterion: str = "log"):
     """Held-out score per sample of each candidate against the current model, ± 2 SE;
     scores far below zero are cut at the left edge (hatched, value written).
 
     ``cands``: the ``candidates`` rows of ``discovery.json`` (``score``, ``score_se`` [nats],
     ``step``, ``effect``, ``axis``, ``passes``, ``supported``, ``tied``, ``chosen_by``, and
-    ``crps_gain``, ``crps_gain_se`` [rad] where stored); ``n_scored``: held-out samples.
-    Returns the matplotlib figure (a second panel for the CRPS gain when any row has one).
+    ``crps_gain``, ``crps_gain_se`` [rad], ``crps_gain_fraction`` where stored);
+    ``n_scored``: held-out samples; ``criterion``: the score that decided (``"log"`` or
+    ``"crps"``), whose panel is coloured by ``passes``.  Returns the matplotlib figure (a
+    second panel for the CRPS gain when any row has one).
     """
     ok = [c for c in cands if c.get("score") is not None and np.isfinite(c["score"])]
     with_crps = any(c.get("crps_gain") is not None for c in ok)
@@ -45,7 +52,8 @@ def candidates_figure(cands: list[dict], n_scored: int):
     y = np.arange(len(ok))
     colors = ["C2" if c.get("passes") and c.get("supported", True) else "C1" if c.get("passes") else "0.6"
               for c in ok][::-1]
-    bars = ax.barh(y, shown, color=colors)
+    by_crps = criterion == "crps" and with_crps
+    bars = ax.barh(y, shown, color="C0" if by_crps else colors, alpha=0.8 if by_crps else 1.0)
     ax.errorbar(np.clip(x, left, None), y, xerr=np.where(x > left, err, 0), fmt="none", ecolor="k",
                 capsize=2)  # fmt: skip
     for bar, value, cut in zip(bars, x, x < left):
@@ -60,29 +68,45 @@ def candidates_figure(cands: list[dict], n_scored: int):
     ax.set_xlim(left * 1.05, right * 1.05)
     ax.set_xlabel("held-out log predictive density minus the current model's,\nper sample [nats] "
                   "(± 2 SE)")  # fmt: skip
-    ax.set_title("Candidate effects (green: passes the margin and the fitting window supports it;\n"
-                 "orange: passes, not supported; grey: does not pass; hatched: cut at the left edge)",
-                 loc="left", fontsize="medium")
+    if by_crps:
+        ax.set_title("Candidate effects, log density (reported; the CRPS decides);\nhatched: cut at the left "
+                     "edge", loc="left", fontsize="medium")  # fmt: skip
+    else:
+        ax.set_title(f"Candidate effects ({KEY};\nhatched: cut at the left edge)", loc="left",
+                     fontsize="medium")  # fmt: skip
     ax.legend(loc="lower right", fontsize="small")
     ax.grid(True, axis="x", alpha=0.4)
     if with_crps:
-        _crps_panel(ax_crps, ok[::-1], n_scored, y)
+        _crps_panel(ax_crps, ok[::-1], n_scored, y, colors if by_crps else None)
     fig.tight_layout()
     return fig
 
 
-def _crps_panel(ax, rows: list[dict], n_scored: int, y: np.ndarray) -> None:
-    """The CRPS gain per sample of ``rows`` (in plotting order) at heights ``y``, ± 2 SE;
-    a row without one (a fit stored before the CRPS was kept) is marked "–"."""
+def _crps_panel(ax, rows: list[dict], n_scored: int, y: np.ndarray, colors=None) -> None:
+    """The CRPS gain per sample of ``rows`` (in plotting order) at heights ``y``, ± 2 SE,
+    each row's margin (:data:`MARGIN_CRPS_FRACTION` of its current model's CRPS) a red
+    tick; a row without one (a fit stored before the CRPS was kept) is marked "–".
+    ``colors``: the bars' pass colours when the CRPS decided."""
     has = np.asarray([r.get("crps_gain") is not None for r in rows])
     gain = np.asarray([r["crps_gain"] if h else 0.0 for r, h in zip(rows, has)]) / n_scored
     err = 2 * np.asarray([r["crps_gain_se"] if h else 0.0 for r, h in zip(rows, has)]) / n_scored
-    ax.barh(y[has], gain[has], color="C0", alpha=0.8)
+    shade = "C0" if colors is None else np.asarray(colors, dtype=object)[has].tolist()
+    ax.barh(y[has], gain[has], color=shade, alpha=0.8 if colors is None else 1.0)
     ax.errorbar(gain[has], y[has], xerr=err[has], fmt="none", ecolor="k", capsize=2)
+    # the reference's CRPS per sample is the gain over its fraction
+    fraction = np.asarray([r.get("crps_gain_fraction") or 0.0 if h else 0.0 for r, h in zip(rows, has)])
+    known = has & (fraction != 0)
+    if known.any():
+        margin = MARGIN_CRPS_FRACTION * gain[known] / fraction[known]
+        ax.plot(margin, y[known], "|", color="C3", ms=10, mew=1.5, label="margin")
     for yi in y[~has]:
         ax.text(0, yi, " –", va="center", fontsize="x-small")
     ax.axvline(0, color="k", lw=0.8)
-    ax.set_xlabel("held-out CRPS of the current model minus the candidate's,\nper sample [rad] (± 2 SE)")
-    ax.set_title("CRPS gain (a second proper score;\nreported, does not decide)", loc="left",
-                 fontsize="medium")  # fmt: skip
+    ax.set_xlabel("held-out CRPS of the current model minus the candidate's,\nper sample [rad] (± 2 SE; "
+                  f"red ticks: the margin, {MARGIN_CRPS_FRACTION:.1%} of the first)")
+    if colors is None:
+        ax.set_title("CRPS gain (a second proper score;\nreported, does not decide)", loc="left",
+                     fontsize="medium")  # fmt: skip
+    else:
+        ax.set_title(f"CRPS gain, which decides\n({KEY})", loc="left", fontsize="small")
     ax.grid(True, axis="x", alpha=0.4)

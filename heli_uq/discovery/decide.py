@@ -1,8 +1,10 @@
 """Decide between candidate models: rank them by held-out score, pick the singles to pair,
 break ties, choose what to add (step 5 of :mod:`heli_uq.discovery.workflow`).
 
-A model beats the current one if :func:`~heli_uq.discovery.score.passes` says so: its
-block-score difference exceeds the calibrated margin and is significant.  Single effects
+A model beats the current one if the deciding :class:`~heli_uq.discovery.score.Criterion`
+(the held-out log density by default, or the CRPS) says so
+(:func:`~heli_uq.discovery.score.passes`): its block-score difference exceeds the
+calibrated margin and is significant.  Single effects
 the best one does not beat by that rule are *tied* with it (effects can act alike on a
 record: a dead band below every voltage used is a torque offset); the fitting window's
 log posterior at the MAP, less a BIC penalty per parameter, breaks the tie.  A pair must
@@ -23,18 +25,20 @@ import itertools
 
 import numpy as np
 
-from heli_uq.discovery.score import compare, passes
+from heli_uq.discovery.score import CRPS, LOG_DENSITY, Criterion, compare
 
 __all__ = ["rank", "pairs_to_fit", "choose"]
 
 
-def rank(results: dict, reference: dict, n_scored: int, n_fit: int) -> list[dict]:
-    """Candidates with their score difference to ``reference`` and its SE, best first;
+def rank(results: dict, reference: dict, n_scored: int, n_fit: int,
+         criterion: Criterion = LOG_DENSITY) -> list[dict]:  # fmt: skip
+    """Candidates with their score difference to ``reference`` and its SE [nats], best
+    first by ``criterion``; ``passes``: they beat ``reference`` by its margin;
     ``support``: their BIC-penalised fitting-window log posterior less ``reference``'s
     [nats] (:func:`_training_support`), ``supported``: it is positive; ``crps_gain``,
     ``crps_gain_se``: how much lower their held-out CRPS is than ``reference``'s, summed
-    over the blocks [rad] (positive: better; reported, it does not decide; None for a
-    stored fit made before the CRPS was kept)."""
+    over the blocks [rad] (positive: better; None for a stored fit made before the CRPS
+    was kept), ``crps_gain_fraction``: that over ``reference``'s CRPS."""
     rows, floor = [], _training_support(reference, n_fit)
     for key, res in results.items():
         if "error" in res:
@@ -45,25 +49,30 @@ def rank(results: dict, reference: dict, n_scored: int, n_fit: int) -> list[dict
         crps = _crps_gain(res, reference)
         rows.append({"effect": key, "score": diff, "score_se": se,
                      "score_per_sample": diff / n_scored,
-                     "passes": passes(res["block_scores"], reference["block_scores"], n_scored),
+                     "passes": criterion.passes(res, reference, n_scored),
                      "held_out": res["score"], "fit": res["fit"], "map_value": res["map_value"],
                      "laplace": res.get("laplace"), "seconds": res["seconds"],
                      "support": float(support), "supported": bool(support > 0),
-                     "crps_gain": crps[0], "crps_gain_se": crps[1],
+                     "crps_gain": crps[0], "crps_gain_se": crps[1], "crps_gain_fraction": crps[2],
                      "reused": bool(res.get("reused")),
                      **({"carried": res["carried"]} if res.get("carried") else {})})  # fmt: skip
-    rows.sort(key=lambda r: -np.inf if r["score"] is None else -r["score"])
+    key = "score" if criterion is LOG_DENSITY else "crps_gain"
+    rows.sort(key=lambda r: np.inf if r.get(key) is None else -r[key])
     return rows
 
 
-def _crps_gain(result: dict, reference: dict) -> tuple[float | None, float | None]:
-    """``(reference's CRPS - result's, its SE)`` over the blocks [rad]
-    (:func:`~heli_uq.discovery.score.compare` of the negated block CRPS); ``(None, None)``
-    when either lacks it or a block is not scored."""
+def _crps_gain(result: dict, reference: dict) -> tuple[float | None, float | None, float | None]:
+    """``(reference's CRPS - result's, its SE, that gain over reference's CRPS)`` over
+    the blocks [rad, rad, 1] (:func:`~heli_uq.discovery.score.compare` of the negated
+    block CRPS; the fraction is what :data:`~heli_uq.discovery.score.MARGIN_CRPS_FRACTION`
+    bounds); ``(None, None, None)`` when either lacks it or a block is not scored."""
     if "block_crps" not in result or "block_crps" not in reference:
-        return None, None
-    gain, se = compare(-np.asarray(result["block_crps"]), -np.asarray(reference["block_crps"]))
-    return (gain, se) if np.isfinite(gain) and np.isfinite(se) else (None, None)
+        return None, None, None
+    gain, se = CRPS.gain(result, reference)
+    total = float(np.sum(reference["block_crps"]))
+    if not (np.isfinite(gain) and np.isfinite(se) and total > 0):
+        return None, None, None
+    return gain, se, gain / total
 
 
 def pairs_to_fit(rows: list[dict], top: int, anchors: int) -> list[tuple[str, str]]:
@@ -107,15 +116,16 @@ def _training_support(result: dict, n_fit: int) -> float:
     return -float(result["map_value"]) - 0.5 * n * np.log(n_fit)
 
 
-def _break_ties(best: dict, passing: list[dict], results: dict, n_scored: int, n_fit: int) -> dict:
+def _break_ties(best: dict, passing: list[dict], results: dict, n_scored: int, n_fit: int,
+                criterion: Criterion) -> dict:  # fmt: skip
     """Among the passing rows that ``best`` does not beat by the margin (``passes``), the
     one the fitting window supports most (:func:`_training_support`).  Every tied row
     gets ``tied: True``; the chosen one ``chosen_by: "training fit"`` if it is not
     ``best``.  Held-out blocks cannot separate effects that act alike on the record (a
     dead band below every voltage used is a torque offset on the same motor's axes);
     the fitting window is longer and breaks the tie, and the report names the rivals."""
-    tied = [r for r in passing if r is best or not passes(results[best["effect"]]["block_scores"],
-                                                          results[r["effect"]]["block_scores"], n_scored)]
+    tied = [r for r in passing
+            if r is best or not criterion.passes(results[best["effect"]], results[r["effect"]], n_scored)]
     if len(tied) == 1:
         return best
     for r in tied:
@@ -126,19 +136,19 @@ def _break_ties(best: dict, passing: list[dict], results: dict, n_scored: int, n
     return chosen
 
 
-def choose(rows: list[dict], results: dict, n_scored: int, n_fit: int):
-    """The row to add (module docstring), or None."""
+def choose(rows: list[dict], results: dict, n_scored: int, n_fit: int, criterion: Criterion = LOG_DENSITY):
+    """The row to add (module docstring) by ``criterion``, or None; ``rows`` as
+    :func:`rank` orders them by the same criterion."""
     passing = [r for r in rows if r.get("passes") and r.get("supported")]
     if not passing:
         return None
     singles = [r for r in passing if len(r["added"]) == 1]
-    best_single = _break_ties(singles[0], singles, results, n_scored, n_fit) if singles else None
+    best_single = _break_ties(singles[0], singles, results, n_scored, n_fit, criterion) if singles else None
     best_pair = next((r for r in passing if len(r["added"]) == 2), None)
     if best_pair is None:
         return best_single
     if best_single is None:
         return best_pair
     # the pair must beat the single by the margin too
-    better = passes(results[best_pair["effect"]]["block_scores"],
-                    results[best_single["effect"]]["block_scores"], n_scored)  # fmt: skip
+    better = criterion.passes(results[best_pair["effect"]], results[best_single["effect"]], n_scored)
     return best_pair if better else best_single

@@ -21,7 +21,7 @@ import numpy as np
 from heli_uq.discovery.candidates import FitTask, fitted_predictive, model_priors
 from heli_uq.discovery.candidates_figure import candidates_figure
 from heli_uq.discovery.report_page import gap_warnings, report_page
-from heli_uq.discovery.score import gap_metrics, gap_text
+from heli_uq.discovery.score import gain_text, gap_metrics, gap_text
 from heli_uq.figure import save_figure
 from heli_uq.io import atomic_write_text
 from heli_uq.model import build_model
@@ -92,8 +92,9 @@ def _candidate_rows(rows: list[dict]) -> list[dict]:
         axes = sorted({e.split(":")[0] for e in r["added"]})
         row = {"effect": "+".join(kinds), "axis": "+".join(axes), "score": r["score"],
                "score_se": r["score_se"], "step": r["step"], "model": r["effect"]}  # fmt: skip
-        for k in ("score_per_sample", "passes", "support", "supported", "crps_gain", "crps_gain_se", "tied",
-                  "chosen_by", "held_out", "fit", "laplace", "seconds", "reused", "carried", "error"):
+        for k in ("score_per_sample", "passes", "support", "supported", "crps_gain", "crps_gain_se",
+                  "crps_gain_fraction", "tied", "chosen_by", "held_out", "fit", "laplace", "seconds",
+                  "reused", "carried", "error"):
             if k in r:
                 row[k] = r[k]
         out.append(row)
@@ -117,8 +118,10 @@ def _effect_parameters(summary_params: dict, effect: str, priors=()) -> dict:
 
 def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_fit, where, ranking,
                   rows, steps, cost, budget, seed, full, refit, chosen_map, fit_window, score_window,
-                  n_scored, say, t_start, priors=()) -> dict:  # fmt: skip
-    """Refit, compare and write every output (module docstring); returns ``discovery.json``."""
+                  n_scored, say, t_start, priors=(), criterion="log") -> dict:  # fmt: skip
+    """Refit, compare and write every output (module docstring); returns ``discovery.json``.
+    ``criterion``: the name of the held-out score that decided
+    (:data:`~heli_uq.discovery.score.CRITERIA`)."""
     search_seconds = time.perf_counter() - t_start
     train, test = refit
     split = test is not None
@@ -161,7 +164,7 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
         "parameters": _effect_parameters(params, first, priors) if first else {},
         "gap_before": gap_before, "gap_after": gap_after,
         "candidates": _candidate_rows(rows),
-        "decision": _decision(added, rows, steps, gap_before, gap_after),
+        "decision": _decision(added, rows, steps, gap_before, gap_after, criterion, n_scored, health),
         "added": [{"effect": e.split(":")[1], "axis": e.split(":")[0],
                    "parameters": _effect_parameters(params, e, priors)} for e in added],
     }  # fmt: skip
@@ -177,13 +180,13 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
                            health=flags,
                            title=f"After: {build_model(effects).label} (NUTS) - {title}"),
                 out / "bands_after.png")  # fmt: skip
-    save_figure(candidates_figure(result["candidates"], n_scored), out / "candidates.png")
+    save_figure(candidates_figure(result["candidates"], n_scored, criterion), out / "candidates.png")
     label = budget if isinstance(budget, str) else repr(budget)
     whole = {"before": gap_metrics(bs, bp, by), "after": gap_metrics(as_, ap, ay)}
     seconds = (time.perf_counter() - t_start, search_seconds)
     atomic_write_text(out / "report.md", report_page(result, where, ranking, steps, base, label, fit_window,
                                                  score_window, n_scored, health, whole, seconds,
-                                                 record, base_model.label, priors))  # fmt: skip
+                                                 record, base_model.label, priors, criterion))  # fmt: skip
     say(f"done: {result['decision']}")
     return result
 
@@ -215,25 +218,33 @@ def _coverage(gap: dict) -> dict:
     return {w: {"theta": g["coverage90_theta"], "psi": g["coverage90_psi"]} for w, g in gap.items()}
 
 
-def _decision(added, rows, steps, before, after) -> str:
+def _decision(added, rows, steps, before, after, criterion="log", n_scored=1, health=None) -> str:
+    """The one-sentence ``decision`` of ``discovery.json``; ``health``: the refit's
+    health record (``summary.json``), whose failure the sentence states, with the first
+    reason: the parameters' intervals come from that posterior."""
     w = "test" if "test" in before else "window"
     where = "the test window" if w == "test" else "the whole window"
     if not added:
         best = next((r for r in rows if r.get("score") is not None), None)
-        why = (f"; the best, {best['effect']}, scored {best['score']:+.0f} ± {best['score_se']:.0f} "
-               f"nats on held-out blocks") if best else ""  # fmt: skip
+        why = (f"; the best, {best['effect']}, scored {gain_text(best, criterion, n_scored)} on held-out "
+               "blocks" if best else "")  # fmt: skip
         if best and best.get("passes") and not best.get("supported"):
             return (f"none: no candidate effect both beats the base model by the calibrated margin and is "
                     f"supported by the fitting window{why}, above the margin, but its fitting-window log "
                     f"posterior at the MAP, less a BIC penalty per parameter, is {-best['support']:.0f} "
                     "nats below the base model's.")  # fmt: skip
-        return f"none: no candidate effect beats the base model by the calibrated margin{why}."
+        margin = "the calibrated margin" + (" of the held-out CRPS" if criterion == "crps" else "")
+        return f"none: no candidate effect beats the base model by {margin}{why}."
     names = " and ".join(f"{e.split(':')[1]} on {e.split(':')[0]}" for e in added)
     tied = steps[0].get("tied") or []
     tie = (f" (tied on held-out blocks with {', '.join(tied)}; the fitting window decided)"
            if tied else "")  # fmt: skip
     worse = gap_warnings(before, after)
+    if health is not None and health.get("ok") is False:
+        why = (health.get("warnings") or ["see refit/summary.json"])[0]
+        worse.append(f"the NUTS refit failed its health checks ({why}; refit/summary.json), so its "
+                     "intervals and coverage are not to be trusted")  # fmt: skip
     warn = f" Warning: {'; '.join(worse)}." if worse else ""
-    return (f"Added {names}: held-out score +{steps[0]['score']:.0f} ± {steps[0]['score_se']:.0f} nats "
-            f"over the base at the first step{tie}; on {where} "
+    return (f"Added {names}: held-out score {gain_text(steps[0], criterion, n_scored)} over the base at "
+            f"the first step{tie}; on {where} "
             f"{gap_text(before[w], after[w])}.{warn}")  # fmt: skip

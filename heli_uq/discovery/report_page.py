@@ -10,7 +10,7 @@ import pathlib
 import numpy as np
 
 from heli_uq.data import unseen_inputs
-from heli_uq.discovery.score import GAP_KEYS, MARGIN_SE
+from heli_uq.discovery.score import GAP_KEYS, MARGIN_CRPS_FRACTION, MARGIN_SE
 
 __all__ = ["report_page", "gap_warnings", "parameter_text", "CLOSER_V_FRACTION"]
 
@@ -152,11 +152,21 @@ def _model_lines(base_label, priors) -> list[str]:
     return [text.strip(), ""]
 
 
+def _criterion_text(criterion: str) -> str:
+    """Which of the two scores decided (the parenthesis of the candidates table's legend)."""
+    if criterion == "log":
+        return "(a second proper score, reported; the log density decides)."
+    return (f"(**the CRPS decides**, `--score crps`: *passes* means a CRPS lower than the current "
+            f"model's by {MARGIN_CRPS_FRACTION:.1%} of it and by {MARGIN_SE:g} SE; the rows are "
+            "ordered by it, and the log density is reported).")
+
+
 def report_page(result, where, ranking, steps, base, budget, fit_window, score_window, n_scored, health,
-                whole, seconds, record, base_label=None, priors=()) -> str:  # fmt: skip
+                whole, seconds, record, base_label=None, priors=(), criterion="log") -> str:  # fmt: skip
     """The text of ``report.md``.  ``seconds``: the whole run's and the search's (base
     fit, candidates, decision) [s]; ``base_label``: the base model's; ``priors``: pairs
-    ``(name, Prior)`` changed from the defaults in every model fitted that has the name."""
+    ``(name, Prior)`` changed from the defaults in every model fitted that has the name;
+    ``criterion``: the name of the held-out score that decided (``"log"`` or ``"crps"``)."""
     total, search = seconds
     lines = [f"# Discovery report: {pathlib.Path(str(record.source)).name}", "",
              f"**Decision.** {result['decision']}", "",
@@ -203,8 +213,8 @@ def report_page(result, where, ranking, steps, base, budget, fit_window, score_w
               "parameter (BIC), minus the current model's [nats]; a candidate is added only if it "
               "passes the margin and this is positive. *Fit* gives *step N* for a model fitted as "
               "a pair at step N and not fitted again. *CRPS gain*: how much lower the held-out "
-              "CRPS is than the current model's, per sample, with its SE [rad] (a second proper "
-              "score, reported; the log density decides).", "",
+              "CRPS is than the current model's, per sample, with its SE [rad] "
+              + _criterion_text(criterion), "",
               "| step | effect | axis | score [nats] | SE | per sample | passes | support [nats] | "
               "CRPS gain [rad] | held-out RMSE pitch / yaw [rad] | held-out V | Pareto k (ESS) | fit [s] |",
               "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip

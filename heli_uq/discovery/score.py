@@ -16,7 +16,7 @@ blocks instead (a standard error needs several).
 base_b``; the difference is ``sum d_b`` with standard error ``sqrt(B) sd(d_b)`` (as for
 the elpd differences of ``arviz.compare``, with blocks in place of points).
 
-**CRPS, reported beside the score** (:func:`block_crps`).  The continuous ranked
+**CRPS** (:func:`block_crps`).  The continuous ranked
 probability score of the predictive draws with errors, ``E|X - y| - E|X - X'| / 2`` per
 sample and angle [rad] (the fair ensemble estimator, ``scoringrules.crps_ensemble``), summed
 per block over both angles; lower is better.  Both are proper scores; they differ in the
@@ -25,8 +25,12 @@ its size in radians, so a model whose mean is much closer but whose band is too 
 for its remaining misses loses on the log density and wins on the CRPS.  On the rig
 record (fitted on 0-91 s, scored on 91-131 s), yaw friction + offset scores -21761 +-
 13997 nats against the base, and beats it by 0.25 rad of CRPS per sample (2.8 SE).
-Only the log density decides, with its margin calibrated on null records; the CRPS is
-not calibrated and is reported so that a user sees when the two disagree.
+Both are reported; one decides (:class:`Criterion`, ``discover(score=...)``): the log
+density by default (:data:`LOG_DENSITY`), whose margin is :data:`MARGIN_PER_SAMPLE`
+nats per held-out sample, or the CRPS (:data:`CRPS`), whose margin is
+:data:`MARGIN_CRPS_FRACTION` of the current model's held-out CRPS (a fraction, because
+the CRPS is in radians and scales with the noise).  Both margins are calibrated on null
+records (``studies/discovery_confusion.py``).
 
 **Gap metrics** of a predictive ensemble on a window: RMSE of the mean simulation per
 angle [rad], the paper's loss ``V`` of the mean simulation [rad^2] and the coverage of the
@@ -35,6 +39,8 @@ central 90 % predictive band.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import scoringrules
 from scipy.special import logsumexp
@@ -42,7 +48,8 @@ from scipy.special import logsumexp
 from heli_uq.output import predictive_metrics
 
 __all__ = ["input_blocks", "block_scores", "block_crps", "compare", "passes", "gap_metrics", "gap_text",
-           "MIN_BLOCK_S", "MIN_BLOCKS", "GAP_KEYS", "MARGIN_SE", "MARGIN_PER_SAMPLE"]  # fmt: skip
+           "gain_text", "Criterion", "LOG_DENSITY", "CRPS", "CRITERIA", "MIN_BLOCK_S", "MIN_BLOCKS",
+           "GAP_KEYS", "MARGIN_SE", "MARGIN_PER_SAMPLE", "MARGIN_CRPS_FRACTION"]  # fmt: skip
 
 #: Shortest block [s]: shorter input segments are merged into the one before.
 MIN_BLOCK_S = 2.0
@@ -53,6 +60,11 @@ MARGIN_SE = 2.0
 #: ... and this many nats per held-out sample (calibrated on records without a hidden
 #: effect: ``studies/discovery_confusion.py``).
 MARGIN_PER_SAMPLE = 0.02
+#: The CRPS's margin: a model beats another if its held-out CRPS is lower by this fraction
+#: of the other's (and by 2 SE).  On four null records the largest gain of any candidate
+#: was 0.36 %; the smallest of four hidden effects 0.95 %; the margin is near their
+#: geometric mean (``studies/notes/discovery.md#a-crps-margin-from-null-records``).
+MARGIN_CRPS_FRACTION = 0.006
 #: Keys of a gap-metrics record (``discovery.json``).
 GAP_KEYS = ("rmse_theta", "rmse_psi", "V", "coverage90_theta", "coverage90_psi")
 
@@ -136,23 +148,75 @@ def compare(scores: np.ndarray, base: np.ndarray) -> tuple[float, float]:
     return float(d.sum()), se
 
 
-def passes(scores, base, n_scored: int) -> bool:
-    """Whether block ``scores`` beat ``base`` over ``n_scored`` held-out samples.
+def passes(scores, base, n_scored: int, *, margin: float | None = None) -> bool:
+    """Whether block ``scores`` beat ``base`` over ``n_scored`` held-out samples (higher
+    is better).
 
-    The difference must exceed :data:`MARGIN_PER_SAMPLE` nats per sample, and be
-    significant: more than :data:`MARGIN_SE` standard errors, *or* no block favouring the
-    other model by more than the per-sample margin (``B >= MIN_BLOCKS`` blocks).  The
-    second form matters when a model's error grows over the window (a drifting
-    simulation): the block differences then grow from about 0 right after the fitting
-    window to large values at its end, and their spread inflates the standard error
-    although every block tells the same story.
+    The difference must exceed ``margin`` (default :data:`MARGIN_PER_SAMPLE` nats per
+    sample), and be significant: more than :data:`MARGIN_SE` standard errors, *or* no
+    block favouring the other model by more than its share of the margin (``B >=
+    MIN_BLOCKS`` blocks).  The second form matters when a model's error grows over the
+    window (a drifting simulation): the block differences then grow from about 0 right
+    after the fitting window to large values at its end, and their spread inflates the
+    standard error although every block tells the same story.
     """
+    margin = MARGIN_PER_SAMPLE * n_scored if margin is None else margin
     diff, se = compare(scores, base)
     d = np.asarray(scores, dtype=float) - np.asarray(base, dtype=float)
-    tolerance = MARGIN_PER_SAMPLE * n_scored / max(d.size, 1)  # per block, of mean length
+    tolerance = margin / max(d.size, 1)  # per block, of mean length
     consistent = d.size >= MIN_BLOCKS and bool(np.all(d > -tolerance))
     significant = diff > MARGIN_SE * se or consistent
-    return bool(np.isfinite(diff) and diff > MARGIN_PER_SAMPLE * n_scored and significant)
+    return bool(np.isfinite(diff) and diff > margin and significant)
+
+
+@dataclasses.dataclass(frozen=True)
+class Criterion:
+    """The held-out score that decides between models, and its calibrated margin.
+
+    Attributes
+    ----------
+    name : str
+        ``"log"`` or ``"crps"`` (``heli-uq discover --score``).
+    key : str
+        The result's per-block values (``block_scores`` [nats] or ``block_crps`` [rad]).
+    sign : float
+        +1 if higher is better, -1 if lower is.
+    unit : str
+    """
+
+    name: str
+    key: str
+    sign: float
+    unit: str
+
+    def values(self, result: dict) -> np.ndarray:
+        """The result's per-block values, higher better, shape (B,); ``[nan]`` if not
+        stored (a fit made before the CRPS was kept: it never passes)."""
+        return self.sign * np.asarray(result.get(self.key, [np.nan]), dtype=float)
+
+    def margin(self, reference: dict, n_scored: int) -> float:
+        """The margin a model must beat ``reference`` by, over the held-out window."""
+        if self.name == "log":
+            return MARGIN_PER_SAMPLE * n_scored
+        return MARGIN_CRPS_FRACTION * float(np.sum(reference.get(self.key, np.nan)))
+
+    def gain(self, result: dict, reference: dict) -> tuple[float, float]:
+        """``(difference, SE)`` of ``result`` over ``reference`` (:func:`compare`, positive
+        is better) in :attr:`unit`."""
+        return compare(self.values(result), self.values(reference))
+
+    def passes(self, result: dict, reference: dict, n_scored: int) -> bool:
+        """Whether ``result`` beats ``reference`` by the margin (:func:`passes`)."""
+        return passes(self.values(result), self.values(reference), n_scored,
+                      margin=self.margin(reference, n_scored))  # fmt: skip
+
+
+#: The held-out log predictive density decides (the default).
+LOG_DENSITY = Criterion("log", "block_scores", 1.0, "nats")
+#: The held-out CRPS decides: robust to a band too narrow for a few misses (module docstring).
+CRPS = Criterion("crps", "block_crps", -1.0, "rad")
+#: The criteria by name.
+CRITERIA = {c.name: c for c in (LOG_DENSITY, CRPS)}
 
 
 def gap_metrics(y_sim: np.ndarray, y_pred: np.ndarray, y_obs: np.ndarray) -> dict:
@@ -177,3 +241,15 @@ def gap_text(gap: dict, after: dict | None = None, *, coverage: bool = True) -> 
         text += (f", 90 % coverage pitch {pair('coverage90_theta', '.0%')}, "
                  f"yaw {pair('coverage90_psi', '.0%')}")
     return text
+
+
+def gain_text(row: dict, criterion: str, n_scored: int) -> str:
+    """A candidate's held-out gain over the current model in words, the deciding score
+    first: ``"+120 ± 30 nats"`` (``"log"``), or ``"a CRPS lower by 0.0123 ± 0.004 rad per
+    sample (log density -50 ± 20 nats)"`` (``"crps"``); ``row`` as
+    :func:`~heli_uq.discovery.decide.rank` makes it."""
+    log = f"{row['score']:+.0f} ± {row['score_se']:.0f} nats"
+    if criterion == "log" or row.get("crps_gain") is None:
+        return log
+    return (f"a CRPS lower by {row['crps_gain'] / n_scored:.3g} ± {row['crps_gain_se'] / n_scored:.2g} "
+            f"rad per sample (log density {log})")

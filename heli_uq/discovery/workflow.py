@@ -33,20 +33,22 @@ Steps (the module of each in parentheses):
    basin at least as good).
    The fits are independent Dask tasks (:mod:`~heli_uq.discovery.rounds`) and are saved
    as they finish, so a rerun with the same output directory reuses them.
-5. **Decide** (:mod:`~heli_uq.discovery.decide`).  The best model beats the current one
-   if its score difference exceeds both :data:`~heli_uq.discovery.score.MARGIN_SE` standard errors and
-   :data:`~heli_uq.discovery.score.MARGIN_PER_SAMPLE` nats per held-out
-   sample (calibrated on records without a hidden effect,
-   ``studies/discovery_confusion.py``).  Single effects that the best one does not beat
-   by that margin are *tied* with it (effects can act alike on a record: a dead band
-   below every voltage used is a torque offset); the fitting window's log posterior at
-   the MAP with a BIC penalty per parameter breaks the tie, and the report names the
+5. **Decide** (:mod:`~heli_uq.discovery.decide`).  The best model beats the current one if
+   its score difference exceeds both :data:`~heli_uq.discovery.score.MARGIN_SE` standard
+   errors and :data:`~heli_uq.discovery.score.MARGIN_PER_SAMPLE` nats per held-out sample
+   (calibrated on records without a hidden effect, ``studies/discovery_confusion.py``).
+   With ``score="crps"`` the held-out CRPS decides instead, with its margin
+   :data:`~heli_uq.discovery.score.MARGIN_CRPS_FRACTION` of the current model's CRPS
+   (:class:`~heli_uq.discovery.score.Criterion`).  Single effects that the best one does
+   not beat by that margin are *tied* with it (effects can act alike on a record: a dead
+   band below every voltage used is a torque offset); the fitting window's log posterior
+   at the MAP with a BIC penalty per parameter breaks the tie, and the report names the
    rivals.  A model must also be *supported* by the fitting window (that penalised log
    posterior above the current model's): an effect fitted to nothing can widen the
    predictive band and so score on held-out blocks where the current model is far off.
-   Among models that pass, one more effect must
-   again pass the margin against the smaller model (parsimony).  With ``max_effects > 1``
-   the step repeats from the chosen model until nothing passes.
+   Among models that pass, one more effect must again pass the margin against the smaller
+   model (parsimony).  With ``max_effects > 1`` the step repeats from the chosen model
+   until nothing passes.
 6. **Refit** the chosen model with NUTS (:func:`heli_uq.output.sample_posterior`) and
    report the gap before and after.  Its draws are saved as they are made, and a rerun
    with the same output directory and settings continues them (``resume="auto"``), so an
@@ -70,7 +72,7 @@ from heli_uq.discovery.locate import locate
 from heli_uq.discovery.nesting import RESTART_NATS, beyond, carried, model_key, nested_guess, pair_start
 from heli_uq.discovery.report import write_outputs
 from heli_uq.discovery.rounds import CandidateStore, run_round
-from heli_uq.discovery.score import gap_text
+from heli_uq.discovery.score import CRITERIA, gain_text, gap_text
 from heli_uq.discovery.sindy import rank_effects
 from heli_uq.errors import ParameterError
 from heli_uq.executor import check_scheduler
@@ -206,7 +208,7 @@ def checked_priors(effects: list[str], priors) -> tuple:
 
 def discover(record: Experiment, out_dir, *, window=None, train=None, test=None, base_effects=(),
              budget="quick", max_effects: int = 1, candidates=None, seed: int = 0,
-             scheduler="local", priors=None, log=None) -> dict:  # fmt: skip
+             scheduler="local", priors=None, score="log", log=None) -> dict:  # fmt: skip
     """Run the discovery workflow (module docstring) and write its outputs to ``out_dir``.
 
     Parameters
@@ -237,6 +239,11 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         parameters of the base model or of a candidate effect, e.g. ``{"a_yaw": 1.0}``
         fixes the tilt of a ``yaw:thrust_tilt`` base effect, or offers that effect as a
         candidate at its derived tilt, without a free parameter.
+    score : {"log", "crps"}
+        The held-out score that decides (:data:`~heli_uq.discovery.score.CRITERIA`): the
+        log predictive density (default) or the CRPS; both are reported.  The fits do
+        not depend on it, so a rerun with the same ``out_dir`` and the other score reuses
+        them.
     log : callable, optional
         Progress messages (default: the ``logging`` INFO of this module, see :mod:`heli_uq.log`).
 
@@ -249,6 +256,9 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     log = progress_log(log, __name__)
     if not isinstance(budget, Budget) and budget not in BUDGETS:
         raise ParameterError(f"budget: expected one of {', '.join(BUDGETS)}, found {budget!r}")
+    if score not in CRITERIA:
+        raise ParameterError(f"score: expected one of {', '.join(CRITERIA)}, found {score!r}")
+    criterion = CRITERIA[score]
     if not (isinstance(max_effects, int) and max_effects >= 1):
         raise ParameterError(f"max_effects: expected an integer >= 1, found {max_effects!r}")
     cost = budget if isinstance(budget, Budget) else BUDGETS[budget]
@@ -341,7 +351,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
                         base_fit, base = again_fit, again
                         where = locate(base_fit, out)
                     continue
-        rows = rank(results, current_res, n_scored, n_fit)
+        rows = rank(results, current_res, n_scored, n_fit, criterion)
         room = max_effects - (len(current) - len(base_effects))
         if room >= 2 and (cost.pair_top >= 2 or cost.pair_anchors >= 1):
             pairs = {}
@@ -351,22 +361,23 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
                 pairs[model_key(effects)] = task(effects, (guess,), nests=(member, member["map"]))
             pair_results = run_round(pairs, store, record, scheduler, say)
             results.update(pair_results)
-            rows = rank(results, current_res, n_scored, n_fit)
+            rows = rank(results, current_res, n_scored, n_fit, criterion)
         for r in rows:
             r["step"] = len(steps) + 1
             r["added"] = [e for e in r["effect"].split("+") if e not in current]
         all_rows += rows
-        choice = choose(rows, results, n_scored, n_fit)
+        choice = choose(rows, results, n_scored, n_fit, criterion)
         if choice is None:
             steps.append({"step": len(steps) + 1, "added": [],
                           "decision": "nothing passes the margin with the fitting window's support"})
             break
         added = choice["added"]
         steps.append({"step": len(steps) + 1, "added": added, "score": choice["score"],
-                      "score_se": choice["score_se"],
+                      "score_se": choice["score_se"], "crps_gain": choice["crps_gain"],
+                      "crps_gain_se": choice["crps_gain_se"],
                       "tied": [r["effect"] for r in rows if r.get("tied") and r is not choice]})  # fmt: skip
-        say(f"step {len(steps)}: adding {', '.join(added)} (score +{choice['score']:.0f} ± "
-            f"{choice['score_se']:.0f} nats)")  # fmt: skip
+        gain = gain_text(steps[-1], criterion.name, n_scored)
+        say(f"step {len(steps)}: adding {', '.join(added)} (held-out score {gain})")
         current = current + added
         current_res = results[choice["effect"]]
         current_map = current_res["map"]
@@ -385,5 +396,5 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         seed=seed, full=cost.nuts_before, refit=(refit_train, refit_test), chosen_map=current_map,
         fit_window=fit_w,
         score_window=score_w,
-        n_scored=n_scored, say=say, t_start=t_start, priors=changes)  # fmt: skip
+        n_scored=n_scored, say=say, t_start=t_start, priors=changes, criterion=criterion.name)  # fmt: skip
     return result

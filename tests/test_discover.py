@@ -305,7 +305,9 @@ def test_the_crps_gain_is_ranked_beside_the_score_and_named_where_the_scores_dis
     (_, line) = _closer_lines(rows, base["score"], n_scored)
     assert "yaw:f (yaw)" in line and "yaw:g" not in line and "yaw:h" not in line
     assert f"CRPS {d.sum() / n_scored:.3g} ± " in line and "rad per sample lower" in line
-    assert "only the log density decides" in line
+    assert "; the log density decides (`--score crps` lets the CRPS decide" in line
+    (_, by_crps) = _closer_lines(rows, base["score"], n_scored, "crps")
+    assert by_crps.endswith("prefers them, and decides here (`--score crps`).")
 
 
 def test_the_candidates_figure_shows_the_crps_gain_beside_the_score():

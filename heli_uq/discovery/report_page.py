@@ -77,12 +77,13 @@ def _crps_text(c: dict, n_scored: int) -> str:
     return f", CRPS {abs(per[0]):.3g} ± {per[1]:.2g} rad per sample {'lower' if per[0] > 0 else 'higher'}"
 
 
-def _closer_lines(candidates: list[dict], base_score: dict, n_scored: int) -> list[str]:
+def _closer_lines(candidates: list[dict], base_score: dict, n_scored: int,
+                  criterion: str = "log") -> list[str]:  # fmt: skip
     """A paragraph on the first-step candidates whose held-out score is below the base's
     although they predict better by another measure: their held-out mean simulation is much
     closer to the data (V below :data:`CLOSER_V_FRACTION` of the base's), or their CRPS is
     lower by :data:`~heli_uq.discovery.score.MARGIN_SE` SE.  Their bands are narrower than
-    their misses."""
+    their misses.  ``criterion``: the score that decided (``"log"`` or ``"crps"``)."""
     closer = [c for c in candidates if c.get("step") == 1 and c.get("score") is not None and c["score"] < 0
               and (c["held_out"]["V"] < CLOSER_V_FRACTION * base_score["V"] or _crps_better(c))]  # fmt: skip
     if not closer:
@@ -93,9 +94,11 @@ def _closer_lines(candidates: list[dict], base_score: dict, n_scored: int) -> li
     crps = ""
     if any(map(_crps_better, closer)):
         which = "them" if all(map(_crps_better, closer)) else "those it beats by 2 SE"
+        decides = (", and decides here (`--score crps`)." if criterion == "crps" else
+                   "; the log density decides (`--score crps` lets the CRPS decide, with its own margin "
+                   "calibrated on records without a hidden effect).")  # fmt: skip
         crps = (" The CRPS, a proper score that charges a miss by its size rather than by its square "
-                f"in units of the band, prefers {which}; only the log density decides (its margin is "
-                "calibrated on records without a hidden effect; the CRPS is not).")
+                f"in units of the band, prefers {which}{decides}")
     return ["", f"**Closer, yet scored below the base:** {names}. Their mean simulation is nearer the "
             "held-out data, but their predictive bands are narrower than their misses, and the log "
             "predictive density penalises a confident miss more than the base model's wider band." + crps]
@@ -231,7 +234,7 @@ def report_page(result, where, ranking, steps, base, budget, fit_window, score_w
                      f"{c['support']:+.0f} | {_crps_cell(c, n_scored)} | "
                      f"{held['rmse_theta']:.3f} / {held['rmse_psi']:.3f} | {held['V']:.3f} | {k} | "
                      f"{_fit_seconds(c)} |")  # fmt: skip
-    lines += _closer_lines(result["candidates"], base["score"], n_scored)
+    lines += _closer_lines(result["candidates"], base["score"], n_scored, criterion)
     lines += ["", "## 4. Steps", ""]
     for s in steps:
         what = ", ".join(s["added"]) if s["added"] else s.get("decision", "")

@@ -61,7 +61,7 @@ MARGIN_SE = 2.0
 #: effect: ``studies/discovery_confusion.py``).
 MARGIN_PER_SAMPLE = 0.02
 #: The CRPS's margin: a model beats another if its held-out CRPS is lower by this fraction
-#: of the other's (and by 2 SE).  On six null records the largest gain of any candidate
+#: of the other's (and by 2 SE).  On eight null records the largest gain of any candidate
 #: was 0.36 %; the smallest of four hidden effects 0.95 %; the margin is near their
 #: geometric mean (``studies/notes/discovery.md#a-crps-margin-from-null-records``).
 MARGIN_CRPS_FRACTION = 0.006

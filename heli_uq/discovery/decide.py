@@ -56,8 +56,7 @@ def rank(results: dict, reference: dict, n_scored: int, n_fit: int,
                      "crps_gain": crps[0], "crps_gain_se": crps[1], "crps_gain_fraction": crps[2],
                      "reused": bool(res.get("reused")),
                      **({"carried": res["carried"]} if res.get("carried") else {})})  # fmt: skip
-    key = "score" if criterion is LOG_DENSITY else "crps_gain"
-    rows.sort(key=lambda r: np.inf if r.get(key) is None else -r[key])
+    rows.sort(key=lambda r: np.inf if r.get(criterion.rank_key) is None else -r[criterion.rank_key])
     return rows
 
 

@@ -182,12 +182,22 @@ class Criterion:
     sign : float
         +1 if higher is better, -1 if lower is.
     unit : str
+    rank_key : str
+        The field of a :func:`~heli_uq.discovery.decide.rank` row it orders by
+        (``score`` [nats] or ``crps_gain`` [rad]).
+    margin_per_sample : float, optional
+        The margin per held-out sample [:attr:`unit`] ...
+    margin_fraction : float, optional
+        ... or as a fraction of the reference's summed block values (one of the two).
     """
 
     name: str
     key: str
     sign: float
     unit: str
+    rank_key: str
+    margin_per_sample: float | None = None
+    margin_fraction: float | None = None
 
     def values(self, result: dict) -> np.ndarray:
         """The result's per-block values, higher better, shape (B,); ``[nan]`` if not
@@ -196,9 +206,9 @@ class Criterion:
 
     def margin(self, reference: dict, n_scored: int) -> float:
         """The margin a model must beat ``reference`` by, over the held-out window."""
-        if self.name == "log":
-            return MARGIN_PER_SAMPLE * n_scored
-        return MARGIN_CRPS_FRACTION * float(np.sum(reference.get(self.key, np.nan)))
+        if self.margin_fraction is None:
+            return self.margin_per_sample * n_scored
+        return self.margin_fraction * float(np.sum(reference.get(self.key, np.nan)))
 
     def gain(self, result: dict, reference: dict) -> tuple[float, float]:
         """``(difference, SE)`` of ``result`` over ``reference`` (:func:`compare`, positive
@@ -212,9 +222,9 @@ class Criterion:
 
 
 #: The held-out log predictive density decides (the default).
-LOG_DENSITY = Criterion("log", "block_scores", 1.0, "nats")
+LOG_DENSITY = Criterion("log", "block_scores", 1.0, "nats", "score", margin_per_sample=MARGIN_PER_SAMPLE)
 #: The held-out CRPS decides: robust to a band too narrow for a few misses (module docstring).
-CRPS = Criterion("crps", "block_crps", -1.0, "rad")
+CRPS = Criterion("crps", "block_crps", -1.0, "rad", "crps_gain", margin_fraction=MARGIN_CRPS_FRACTION)
 #: The criteria by name.
 CRITERIA = {c.name: c for c in (LOG_DENSITY, CRPS)}
 

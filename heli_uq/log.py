@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import warnings
 from collections.abc import Callable
 
 __all__ = ["LOGGER_NAME", "progress_log", "configure_cli"]
@@ -55,7 +56,10 @@ def configure_cli(quiet: bool) -> None:
     """Show the package's INFO messages on stdout, one line each, or none of them when
     ``quiet``; warnings and errors go to stderr as one line ``warning: <message>`` either
     way (logging's own last-resort output stops as soon as the logger has any handler).
+    arviz's notice of its coming 1.0 refactor (a ``FutureWarning`` of four lines, printed
+    on its first import each day) is not shown: it is about arviz, not about the run.
     Idempotent."""
+    warnings.filterwarnings("ignore", category=FutureWarning, module="arviz")
     logger = logging.getLogger(LOGGER_NAME)
     for handler in [h for h in logger.handlers if isinstance(h, _SysStreamHandler)]:
         logger.removeHandler(handler)

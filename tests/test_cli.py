@@ -373,6 +373,19 @@ def test_a_package_warning_reaches_stderr_as_one_line(tmp_path, capsys, quiet):
     assert quiet or "psi 17.19..531.1 deg" in stdout  # read continuous: 0.3 + 0.03 * 299 rad
 
 
+
+@pytest.mark.parametrize("configured", [False, True])
+def test_arviz_daily_notice_is_not_shown_by_the_command(tmp_path, configured):
+    """arviz prints a four-line FutureWarning on its first import each day (its stamp file
+    lives in the user cache); the command's output setup keeps it off stderr.  Without
+    that setup the same import shows it, so the check can fail."""
+    setup = "from heli_uq.log import configure_cli; configure_cli(True); " if configured else ""
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path)}  # no stamp: arviz warns today
+    done = subprocess.run([sys.executable, "-c", setup + "import arviz"], env=env,
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert ("ArviZ is undergoing" in done.stderr) is not configured
+
 @pytest.mark.parametrize("window", ["2:3", "0.5:0.1", "abc"])
 def test_data_show_bad_window(tmp_path, capsys, small_record, window):
     code, _, err = run(capsys, "data", "show", str(small_record), "--window", window,

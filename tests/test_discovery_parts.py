@@ -797,3 +797,17 @@ def test_the_crps_decides_when_asked_with_its_own_margin():
     assert text.startswith(f"a CRPS lower by {0.35 * base_crps.sum() / n_scored:.3g} ± 0")
     assert text.endswith("rad per sample (log density -20000 ± 0 nats)")
     assert gain_text(row, "log", n_scored) == "-20000 ± 0 nats"
+
+
+def test_a_budget_reads_as_its_preset_and_the_settings_that_differ():
+    """The report names the budget a person chose (``--cold-starts 1`` on the quick one),
+    not the dataclass's repr of twelve fields."""
+    import dataclasses
+
+    from heli_uq.discovery.budget import BUDGETS, label
+
+    assert label("quick") == "quick"
+    assert label(BUDGETS["full"]) == "full"
+    assert label(dataclasses.replace(BUDGETS["quick"], cold_starts=1)) == "quick, cold_starts=1"
+    two = dataclasses.replace(BUDGETS["full"], chains=2, minutes=None)
+    assert label(two) == "full, chains=2, minutes=None"

@@ -17,9 +17,10 @@ posterior mass (``solver_ok``), so the generating and the inference prior are th
 truncated prior.  The package's model centres the initial-angle prior on the first
 measurement; the truth is drawn around the synthetic default start instead, so the two
 priors differ whenever the noise sigma is not small next to ``X0_ANGLE_SD``.
-``x0_prior="generator"`` (use it for SBC) gives the model explicit initial-angle priors
-``normal(SYNTHETIC_X0, X0_ANGLE_SD)`` so the generating and the inference prior agree;
-``"data"`` keeps the package's data-centred prior.  The generator draws *one* residual
+``x0_prior="generator"`` (use it for SBC) gives the model explicit initial-state priors
+(``normal(SYNTHETIC_X0, X0_ANGLE_SD)`` for the angles, ``X0_RATE_SD`` for the rates) so
+the generating and the inference prior agree; ``"data"`` keeps the package's defaults,
+centred on the record (its first angles, its measured initial rates).  The generator draws *one* residual
 scale for both angles, the model has independent ``sigma_theta`` and ``sigma_psi``
 priors; only the model parameters' coordinates are ranked.
 
@@ -49,7 +50,7 @@ from heli_uq.executor import TaskFailed, check_scheduler, run_tasks
 from heli_uq.inference import prepare_start, run_nuts
 from heli_uq.io import atomic_write_text
 from heli_uq.log import progress_log
-from heli_uq.model import TABLE1, HeliModel, Prior
+from heli_uq.model import TABLE1, X0_NAMES, HeliModel, Prior
 from heli_uq.probability import PriorSet, make_problem
 from heli_uq.probability.priors import SIGMA_PRIOR, X0_ANGLE_SD, X0_RATE_SD
 from heli_uq.provenance import code_version
@@ -58,7 +59,8 @@ from heli_uq.simulation import SYNTHETIC_X0, synthetic_experiment
 __all__ = ["SBCSettings", "study_priors", "draw_replicate", "run_replicate", "run_sbc",
            "load_replicates", "SETTINGS_FILE", "FAILED_FILE", "COVERAGE_LEVEL"]  # fmt: skip
 
-#: Initial-state entries whose prior ``x0_prior="generator"`` centres on SYNTHETIC_X0.
+#: The initial angles: with ``x0_prior="generator"`` every initial-state entry's prior is
+#: the generator's, ``normal(SYNTHETIC_X0, X0_ANGLE_SD)`` for these, ``X0_RATE_SD`` for the rates.
 X0_ANGLES = ("theta0", "psi0")
 #: Prior draws tried per replicate before giving up (a draw whose simulation fails, or
 #: whose angles leave |angle| < MAX_ANGLE [rad], is redrawn).
@@ -88,8 +90,8 @@ def study_priors(prior_sd: float, h_sd: float, x0_prior: str = "data",
         else:
             changes[name] = Prior("lognormal", TABLE1[name], prior_sd)
     if x0_prior == "generator":
-        changes.update({n: Prior("normal", SYNTHETIC_X0[i], X0_ANGLE_SD)
-                        for i, n in enumerate(X0_ANGLES)})  # fmt: skip
+        changes.update({n: Prior("normal", SYNTHETIC_X0[i], X0_ANGLE_SD if n in X0_ANGLES else X0_RATE_SD)
+                        for i, n in enumerate(X0_NAMES)})  # fmt: skip
     return PriorSet.default(model).updated(model, changes, where="sbc prior")
 
 

@@ -20,6 +20,7 @@ from heli_uq.data.experimental import load_data as load_data
 from heli_uq.data.experimental import load_experimental as load_experimental
 from heli_uq.data.inputs import unseen_inputs as unseen_inputs
 from heli_uq.data.rates import evenly_spaced as evenly_spaced
+from heli_uq.data.rates import initial_rates as initial_rates
 from heli_uq.data.rates import measured_rates as measured_rates
 from heli_uq.data.record import COLUMNS as COLUMNS
 from heli_uq.data.record import HEADER as HEADER
@@ -30,5 +31,5 @@ from heli_uq.data.record import read_record as read_record
 __all__ = [
     "DATA_ENV_VAR", "EXPERIMENTAL_FILENAME", "EXPERIMENTAL_SHA256", "EXPERIMENTAL_URL",
     "load_data", "load_experimental", "COLUMNS", "HEADER", "Experiment", "parse_window",
-    "read_record", "unseen_inputs", "measured_rates", "evenly_spaced",
+    "read_record", "unseen_inputs", "measured_rates", "evenly_spaced", "initial_rates",
 ]  # fmt: skip

@@ -11,11 +11,11 @@ choice), ``workflow`` (the steps), ``report`` (refit and outputs), ``report_page
 (``report.md``), ``candidates_figure`` (``candidates.png``).
 """
 
+from heli_uq.discovery.budget import BUDGETS as BUDGETS
+from heli_uq.discovery.budget import Budget as Budget
 from heli_uq.discovery.report import DISCOVERY_KEYS as DISCOVERY_KEYS
 from heli_uq.discovery.score import MARGIN_PER_SAMPLE as MARGIN_PER_SAMPLE
 from heli_uq.discovery.score import MARGIN_SE as MARGIN_SE
-from heli_uq.discovery.workflow import BUDGETS as BUDGETS
-from heli_uq.discovery.workflow import Budget as Budget
 from heli_uq.discovery.workflow import candidate_effects as candidate_effects
 from heli_uq.discovery.workflow import discover as discover
 

@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 
+from heli_uq.discovery.budget import label as budget_label
 from heli_uq.discovery.candidates import FitTask, fitted_predictive, model_priors
 from heli_uq.discovery.candidates_figure import candidates_figure
 from heli_uq.discovery.report_page import gap_warnings, report_page
@@ -34,7 +35,7 @@ __all__ = ["write_outputs", "DISCOVERY_KEYS"]
 #: (full budget, 2026-11-28) the base posterior used 24 of its 27 min at half, and the
 #: refit, left 30 min, could keep only 111 draws per chain.
 BEFORE_SHARE = 1.0 / 3.0
-#: Seconds a budget with a time target (:attr:`~heli_uq.discovery.workflow.Budget.minutes`)
+#: Seconds a budget with a time target (:attr:`~heli_uq.discovery.budget.Budget.minutes`)
 #: keeps for the posterior-predictive simulations, figures and files after its last NUTS
 #: run stops sampling.
 OUTPUT_SECONDS = 30.0
@@ -181,12 +182,11 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
                            title=f"After: {build_model(effects).label} (NUTS) - {title}"),
                 out / "bands_after.png")  # fmt: skip
     save_figure(candidates_figure(result["candidates"], n_scored, criterion), out / "candidates.png")
-    label = budget if isinstance(budget, str) else repr(budget)
     whole = {"before": gap_metrics(bs, bp, by), "after": gap_metrics(as_, ap, ay)}
     seconds = (time.perf_counter() - t_start, search_seconds)
-    atomic_write_text(out / "report.md", report_page(result, where, ranking, steps, base, label, fit_window,
-                                                 score_window, n_scored, health, whole, seconds,
-                                                 record, base_model.label, priors, criterion))  # fmt: skip
+    page = report_page(result, where, ranking, steps, base, budget_label(budget), fit_window, score_window,
+                       n_scored, health, whole, seconds, record, base_model.label, priors, criterion)
+    atomic_write_text(out / "report.md", page)
     say(f"done: {result['decision']}")
     return result
 

@@ -42,7 +42,7 @@ from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.prior import Prior
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.probability.likelihood import loss_v
-from heli_uq.probability.priors import PriorSet
+from heli_uq.probability.priors import PriorSet, RecordStart
 from heli_uq.probability.problem import make_problem
 
 __all__ = ["identifiability_report", "prior_moments", "draws_in_w", "contraction",
@@ -62,12 +62,14 @@ LOADING_PART = 0.1
 LAPLACE_DRAWS = 4000
 
 
-def prior_moments(pv: ParameterVector, priors: PriorSet, y0) -> tuple[np.ndarray, np.ndarray]:
+def prior_moments(pv: ParameterVector, priors: PriorSet,
+                  start: RecordStart) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Exact prior mean and sd of every coordinate of ``w``.
 
     Each free parameter's prior must be written in ``w``'s coordinate of it (log for
     positive parameters: log-normal or half-normal; identity otherwise: normal); initial
-    state: the :class:`~heli_uq.probability.PriorSet` entries around the first sample.
+    state: the :class:`~heli_uq.probability.PriorSet` entries, their defaults from the
+    record's ``start``.
 
     Raises
     ------
@@ -88,7 +90,7 @@ def prior_moments(pv: ParameterVector, priors: PriorSet, y0) -> tuple[np.ndarray
         sd.append(s_)
     if pv.include_x0:
         for n in X0_NAMES:
-            p = priors.x0_prior(n, y0)
+            p = priors.x0_prior(n, start)
             if not p.free:
                 raise ParameterError(f"{n}: its prior is fixed; the report needs a normal prior")
             mean.append(p.a)
@@ -293,7 +295,7 @@ def identifiability_report(record: Experiment, out_dir, *, model: HeliModel | No
         substeps = default_substeps(model, base, record.dt, margin=2.0, thetas=record.y[:, 0])
     pv = ParameterVector(model, tuple(free), base, substeps=substeps)
     u, y, dt = np.asarray(record.u), np.asarray(record.y), float(record.dt)
-    prior_mean, prior_sd = prior_moments(pv, priors, y[0])
+    prior_mean, prior_sd = prior_moments(pv, priors, RecordStart.of(y, dt, u))
     timings = {}
     t0 = time.perf_counter()
     log(f"fitting {pv.dim} coordinates to {record.n} samples ({error} errors) ...")

@@ -88,8 +88,8 @@ def init_sites(problem: Problem, params: dict, x0, sigma=(0.05, 0.05), tau=(0.5,
     values = {"z": z[1:] if coords.marginal_scale else z}
     if coords.marginal_scale:
         values["scale_noise"] = jnp.asarray(coords.scale_noise(z))
-    for name, v in zip(X0_NAMES, x0):
-        if problem.priors.x0_prior(name, problem.x0_center).free:
+    for name, v, prior in zip(X0_NAMES, x0, problem.x0_priors()):
+        if prior.free:
             values[name] = jnp.asarray(float(v))
     for i, o in enumerate(OUTPUTS):
         if problem.priors.noise[f"sigma_{o}"].free:

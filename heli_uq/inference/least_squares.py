@@ -17,7 +17,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from heli_uq.inference.levenberg import masked_least_squares
-from heli_uq.model.tables import X0_NAMES
 from heli_uq.probability.likelihood import whitened_residuals
 from heli_uq.probability.problem import Problem
 
@@ -43,7 +42,7 @@ def least_squares_fit(problem: Problem, *, max_steps: int = 100):
     n, d = problem.n_train, coords.dim
     y = jnp.asarray(problem.y[:n])
     mu, sd = (jnp.asarray(a) for a in coords.prior_moments())
-    x0_priors = [problem.priors.x0_prior(name, problem.x0_center) for name in X0_NAMES]
+    x0_priors = problem.x0_priors()
     x0_mu = jnp.asarray([p.a for p in x0_priors])
     x0_sd = jnp.asarray([p.b if p.free else 1.0 for p in x0_priors])
 
@@ -71,13 +70,9 @@ def least_squares_fit(problem: Problem, *, max_steps: int = 100):
 
 
 def x0_guess(problem: Problem) -> np.ndarray:
-    """First measured angles and zero rates; fixed initial-state priors keep their value."""
-    guess = np.concatenate([problem.y[0], np.zeros(2)])
-    for i, name in enumerate(X0_NAMES):
-        prior = problem.priors.x0_prior(name, problem.x0_center)
-        if not prior.free or problem.priors.x0[name] is not None:
-            guess[i] = prior.a
-    return guess
+    """The initial-state priors' centres: the first measured angles and the record's
+    initial rates by default (:attr:`Problem.record_start`), a fixed value where fixed."""
+    return np.array([prior.a for prior in problem.x0_priors()])
 
 
 def grid_start(problem: Problem, params: dict, *, log=None) -> dict | None:

@@ -79,8 +79,8 @@ def prior_draws(problem, n: int, seed: int = 0) -> dict:
     rng = np.random.default_rng(seed)
     priors: PriorSet = problem.priors
     out = priors.draw(problem.model, rng, (1, n))
-    for name in X0_NAMES:
-        out[name] = priors.x0_prior(name, problem.x0_center).sample(rng, (1, n))
+    for name, prior in zip(X0_NAMES, problem.x0_priors()):
+        out[name] = prior.sample(rng, (1, n))
     out["sigma"] = np.stack([priors.noise[f"sigma_{o}"].sample(rng, (1, n)) for o in OUTPUTS], axis=-1)
     if problem.error == "ar1":
         out["tau"] = np.stack([priors.noise[f"tau_{o}"].sample(rng, (1, n)) for o in OUTPUTS], axis=-1)

@@ -37,17 +37,19 @@ __all__ = ["heli_model", "MODES"]
 MODES = ("fit", "params", "predict")
 
 
-def _scalar_site(name: str, prior, loc=None):
+def _scalar_site(name: str, prior, loc=None, scale=None):
     """A sampled scalar (normal or log-normal prior) or a deterministic fixed value.
 
-    ``loc``: the normal prior's location as an array element (``prior.a`` by default): a
-    location taken from the record then reaches the compiled program as an argument, not
-    as a constant, so records of one length share compiled programs (:mod:`heli_uq._jax_config`).
+    ``loc``, ``scale``: the normal prior's location and sd as array elements (``prior.a``,
+    ``prior.b`` by default): values taken from the record then reach the compiled program
+    as arguments, not as constants, so records of one length share compiled programs
+    (:mod:`heli_uq._jax_config`).
     """
     if prior.kind == "fixed":
         return numpyro.deterministic(name, jnp.asarray(prior.a))
     if prior.kind == "normal":
-        return numpyro.sample(name, dist.Normal(prior.a if loc is None else loc, prior.b))
+        return numpyro.sample(name, dist.Normal(prior.a if loc is None else loc,
+                                                prior.b if scale is None else scale))  # fmt: skip
     if prior.kind == "lognormal":
         return numpyro.sample(name, dist.LogNormal(jnp.log(prior.a), prior.b))
     raise ParameterError(f"{name}: prior {prior.describe()} is not supported here")
@@ -65,9 +67,11 @@ def heli_model(problem: Problem, y=None, mode: str = "fit"):
     numpyro.factor("prior", log_prior)
     for name in coords.free:
         numpyro.deterministic(name, phys[name])
-    x0_priors = [problem.priors.x0_prior(n, problem.x0_center) for n in X0_NAMES]
+    x0_priors = problem.x0_priors()
     x0_loc = jnp.asarray([p.a for p in x0_priors])
-    x0 = jnp.stack([_scalar_site(n, p, x0_loc[i]) for i, (n, p) in enumerate(zip(X0_NAMES, x0_priors))])
+    x0_scale = jnp.asarray([p.b for p in x0_priors])
+    x0 = jnp.stack([_scalar_site(n, p, x0_loc[i], x0_scale[i])
+                    for i, (n, p) in enumerate(zip(X0_NAMES, x0_priors))])  # fmt: skip
     sigma = numpyro.deterministic("sigma", jnp.stack(
         [_scalar_site(f"sigma_{o}", problem.priors.noise[f"sigma_{o}"]) for o in OUTPUTS]))
     rho = None

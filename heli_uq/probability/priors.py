@@ -12,7 +12,10 @@ model parameters            declared by each term        e.g. Table 2 log-normal
                                                          2) for the mechanics and the gains,
                                                          half-normals for friction levels
 theta0, psi0                normal(first sample, 0.05)   rad; measurement noise is a few mrad
-omega_theta0, omega_psi0    normal(0, 0.2)               rad/s; the rig starts nearly at rest
+omega_theta0, omega_psi0    normal(0, 0.2); where the    rad/s; the rig starts nearly at
+                            record starts still, updated rest, and a still start says
+                            with its measured rate       how nearly
+                            (:class:`RecordStart`)
 sigma_theta, sigma_psi      log-normal(0.05 rad, 1.5)    residual scale incl. model error
 tau_theta, tau_psi (AR(1))  log-normal(0.5 s, 1.0)       correlation time of the residuals;
                                                          rho = exp(-dt / tau).  A prior on
@@ -22,7 +25,20 @@ tau_theta, tau_psi (AR(1))  log-normal(0.5 s, 1.0)       correlation time of the
 ==========================  ===========================  ===================================
 
 The initial-state priors may be ``normal`` or ``fixed`` (an explicit normal replaces the
-default centred on the first sample); the error-model priors ``lognormal`` or ``fixed``.
+default centred on the record); the error-model priors ``lognormal`` or ``fixed``.
+
+**Why the initial rates' default looks at the record.**  A model with a sticking term
+(Coulomb friction, a network of the states) stops a small initial rate within a few
+samples, after a displacement ``omega^2 / (2 a)`` that the initial angle can absorb: on
+``normal(0, 0.2)`` alone the initial yaw rate and angle then share a curved ridge, the
+coordinate NUTS mixed worst on the rig record and in half of ``discover``'s quick refits.
+Where a record starts still, its first second measures the rate directly
+(:func:`heli_uq.data.initial_rates`: to about 0.01 rad/s on the rig's yaw), so the default
+is ``normal(0, X0_RATE_SD)`` updated with that measurement, whose sd is widened by
+:data:`X0_RATE_FLOOR`.  Where it moves, a polynomial's slope is no trustworthy rate (a
+start that accelerates bends it) and the default stays ``normal(0, X0_RATE_SD)``.  The same
+samples also enter the likelihood; for a nuisance entry of the state that double use is
+accepted, as for the initial angles' prior centred on the first sample.
 """
 
 from __future__ import annotations
@@ -33,21 +49,62 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from heli_uq.data.rates import initial_rates
 from heli_uq.errors import ParameterError
 from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.parameter import check_prior
 from heli_uq.model.prior import Prior, parse_prior_text, prior_from_json
 from heli_uq.model.tables import X0_NAMES
 
-__all__ = ["PriorSet", "fixed_values", "X0_ANGLE_SD", "X0_RATE_SD", "SIGMA_PRIOR", "TAU_PRIOR", "OUTPUTS",
-           "parse_prior_option", "load_priors_json"]  # fmt: skip
+__all__ = ["PriorSet", "RecordStart", "fixed_values", "X0_ANGLE_SD", "X0_RATE_SD", "X0_RATE_FLOOR",
+           "SIGMA_PRIOR", "TAU_PRIOR", "OUTPUTS", "parse_prior_option", "load_priors_json"]  # fmt: skip
 
 X0_ANGLE_SD = 0.05  # rad
-X0_RATE_SD = 0.2  # rad/s
+X0_RATE_SD = 0.2  # rad/s, the initial rates' prior before the record's first second
+#: Added in quadrature to the standard error of a record's measured initial rate [rad/s]:
+#: what the first second's quadratic cannot follow (module docstring).
+X0_RATE_FLOOR = 0.01
 SIGMA_PRIOR = Prior("lognormal", 0.05, 1.5)  # residual scale per output [rad]
 TAU_PRIOR = Prior("lognormal", 0.5, 1.0)  # AR(1) correlation time per output [s]
 OUTPUTS = ("theta", "psi")
 _NOISE_NAMES = tuple(f"sigma_{o}" for o in OUTPUTS) + tuple(f"tau_{o}" for o in OUTPUTS)
+
+
+@dataclasses.dataclass(frozen=True)
+class RecordStart:
+    """What a record says about its initial state, for the initial state's default prior.
+
+    Attributes
+    ----------
+    angles : tuple of float
+        The first measured (theta, psi) [rad].
+    still : tuple of bool
+        Whether each angle starts still (:func:`heli_uq.data.initial_rates`).
+    rates, rate_se : tuple of float
+        The rates at the first sample and their standard errors [rad/s].
+    """
+
+    angles: tuple
+    still: tuple = (False, False)
+    rates: tuple = (0.0, 0.0)
+    rate_se: tuple = (np.inf, np.inf)
+
+    @classmethod
+    def of(cls, y, dt: float, u=None) -> RecordStart:
+        """The start of the record ``y`` (N, 2) [rad] with voltages ``u`` (N, 2) [V]."""
+        still, rates, se = initial_rates(y, dt, u)
+        return cls(tuple(float(a) for a in np.asarray(y)[0, :2]), tuple(bool(s) for s in still),
+                   tuple(float(r) for r in rates), tuple(float(e) for e in se))  # fmt: skip
+
+    def rate_prior(self, i: int) -> Prior:
+        """The default prior of initial rate ``i`` (0 pitch, 1 yaw): ``normal(0,
+        X0_RATE_SD)``, updated, where the angle starts still, with its measured rate, whose
+        sd is ``sqrt(se^2 + X0_RATE_FLOOR^2)`` (precisions add)."""
+        if not self.still[i]:
+            return Prior("normal", 0.0, X0_RATE_SD)
+        measured = self.rate_se[i] ** 2 + X0_RATE_FLOOR**2
+        precision = X0_RATE_SD**-2 + 1.0 / measured
+        return Prior("normal", float(self.rates[i] / measured / precision), float(precision**-0.5))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -61,7 +118,8 @@ class PriorSet:
     x0 : dict of str to Prior or None
         ``theta0, psi0, omega_theta0, omega_psi0``; ``None`` is the default (angles:
         normal around the first measured sample, sd :data:`X0_ANGLE_SD`; rates:
-        normal(0, :data:`X0_RATE_SD`)).
+        normal(0, :data:`X0_RATE_SD`) updated with the record's measured initial rate,
+        :meth:`RecordStart.rate_prior`).
     noise : dict of str to Prior
         ``sigma_theta, sigma_psi, tau_theta, tau_psi``.
     """
@@ -90,13 +148,15 @@ class PriorSet:
         params = {p.name: self.params.get(p.name, p.prior) for p in model.parameters()}
         return PriorSet(params, self.x0, self.noise)
 
-    def x0_prior(self, name: str, y0) -> Prior:
-        """The prior of an initial-state entry; ``y0`` = first measured angles (2,) [rad]."""
+    def x0_prior(self, name: str, start: RecordStart) -> Prior:
+        """The prior of an initial-state entry: the one set by name, else the default of
+        ``start``, the record's start (angles: normal around the first sample, sd
+        :data:`X0_ANGLE_SD`; rates: :meth:`RecordStart.rate_prior`)."""
         prior = self.x0[name]
         if prior is not None:
             return prior
         i = X0_NAMES.index(name)
-        return Prior("normal", float(y0[i]), X0_ANGLE_SD) if i < 2 else Prior("normal", 0.0, X0_RATE_SD)
+        return Prior("normal", start.angles[i], X0_ANGLE_SD) if i < 2 else start.rate_prior(i - 2)
 
     def updated(self, model: HeliModel, changes: Mapping, *, where: str = "priors") -> PriorSet:
         """A copy with entries replaced; ``changes`` maps names to :class:`Prior` or JSON specs.

@@ -14,9 +14,10 @@ import numpy as np
 from heli_uq.data.record import Experiment
 from heli_uq.errors import ParameterError
 from heli_uq.model.heli_model import HeliModel
+from heli_uq.model.tables import X0_NAMES
 from heli_uq.probability.coordinates import Coordinates
 from heli_uq.probability.noise import ERROR_MODELS
-from heli_uq.probability.priors import PriorSet
+from heli_uq.probability.priors import PriorSet, RecordStart
 from heli_uq.simulation.solver import default_substeps, solve
 
 __all__ = ["Problem", "check_split", "make_problem", "fingerprint"]
@@ -64,8 +65,15 @@ class Problem:
     source: str = ""
 
     @property
-    def x0_center(self) -> np.ndarray:
-        return self.y[0]
+    def record_start(self) -> RecordStart:
+        """What the record says about the initial state (the initial-state priors' default)."""
+        return RecordStart.of(self.y, self.dt, self.u)
+
+    def x0_priors(self) -> tuple:
+        """The priors of ``theta0, psi0, omega_theta0, omega_psi0`` (in that order): each
+        one set by name, else the default from :attr:`record_start`."""
+        start = self.record_start
+        return tuple(self.priors.x0_prior(name, start) for name in X0_NAMES)
 
     def windows(self) -> dict[str, tuple[int, int]]:
         """``{"train": (0, n_train), "test": (start, stop)}`` sample-index ranges."""

@@ -118,8 +118,8 @@ class PriorSet:
     x0 : dict of str to Prior or None
         ``theta0, psi0, omega_theta0, omega_psi0``; ``None`` is the default (angles:
         normal around the first measured sample, sd :data:`X0_ANGLE_SD`; rates:
-        normal(0, :data:`X0_RATE_SD`) updated with the record's measured initial rate,
-        :meth:`RecordStart.rate_prior`).
+        normal(0, :data:`X0_RATE_SD`), updated where the record starts still with its
+        measured initial rate, :meth:`RecordStart.rate_prior`).
     noise : dict of str to Prior
         ``sigma_theta, sigma_psi, tau_theta, tau_psi``.
     """

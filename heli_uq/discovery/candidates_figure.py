@@ -102,8 +102,8 @@ def _crps_panel(ax, rows: list[dict], n_scored: int, y: np.ndarray, colors=None)
     for yi in y[~has]:
         ax.text(0, yi, " –", va="center", fontsize="x-small")
     ax.axvline(0, color="k", lw=0.8)
-    ax.set_xlabel("held-out CRPS of the current model minus the candidate's,\nper sample [rad] (± 2 SE; "
-                  f"red ticks: the margin, {MARGIN_CRPS_FRACTION:.1%} of the first)")
+    ax.set_xlabel("held-out CRPS of the current model minus\nthe candidate's, per sample [rad] (± 2 SE);\n"
+                  f"red ticks: the margin, {MARGIN_CRPS_FRACTION:.1%} of the current CRPS")
     if colors is None:
         ax.set_title("CRPS gain (a second proper score;\nreported, does not decide)", loc="left",
                      fontsize="medium")  # fmt: skip

@@ -189,13 +189,20 @@ def main(argv=None):
         lines.append(line)
         print(json.dumps({k: v for k, v in line.items() if k not in ("windows", "recovered", "provenance")}),
               flush=True)  # fmt: skip
-    latest = {}  # the table: the newest line of each row on this split, over every run
-    for text in pathlib.Path(args.out).read_text().splitlines() if lines else ():
-        line = json.loads(text)
-        if (line["train"], line["test"]) == (args.train, args.test):
-            latest[line["row"]] = line
-    _write_table(list(latest.values()), pathlib.Path(args.out).with_suffix(".md"))
+    if lines:
+        write_table(pathlib.Path(args.out), args.train, args.test)
     return 0
+
+
+def write_table(out: pathlib.Path, train: str, test: str) -> None:
+    """The table ``out`` with suffix ``.md``: the newest line of each row on this split, over
+    every run of ``out`` (a ``.jsonl`` file)."""
+    latest = {}
+    for text in out.read_text().splitlines():
+        line = json.loads(text)
+        if (line["train"], line["test"]) == (train, test):
+            latest[line["row"]] = line
+    _write_table(list(latest.values()), out.with_suffix(".md"))
 
 
 def _sampler(info: dict) -> str:
@@ -213,8 +220,8 @@ def _write_table(lines, path: pathlib.Path) -> None:
 
     head = ("| model | V full [rad²] | RMSE θ / ψ train [rad] | RMSE θ / ψ test [rad] "
             "| 90 % cov. θ / ψ train | 90 % cov. θ / ψ test | test score − mechanistic [nats] (se) "
-            "| parameters | sampler | R-hat | wall |\n"
-            "|---|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
+            "| parameters | sampler | R-hat | wall | run |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
     rows = [head]
     for ln in lines:
         tr, te = ln["windows"]["train"], ln["windows"].get("test", {})
@@ -229,7 +236,7 @@ def _write_table(lines, path: pathlib.Path) -> None:
                     f"| {pct(tr['coverage90']['theta'])} / {pct(tr['coverage90']['psi'])} "
                     f"| {pct(te['coverage90']['theta'])} / {pct(te['coverage90']['psi'])} "
                     f"| {diff} | {ln['parameters']} | {_sampler(ln['sampler'])} | {rhat} "
-                    f"| {ln['seconds'] / 60:.0f} min |")  # fmt: skip
+                    f"| {ln['seconds'] / 60:.0f} min | {ln['provenance']['time'][:10]} |")  # fmt: skip
     atomic_write_text(path, "\n".join(rows) + "\n")
 
 

@@ -26,6 +26,8 @@ POSTERIOR_ROWS = (
     ("mechanistic, NUTS on the whole record (iid)", "nuts_iid_full_target0.95.summary.json"),
     ("mechanistic, NUTS on 0–91 s, test 91–131 s (iid)", "nuts_iid_train0-91_test91-131.summary.json"),
     ("mechanistic, NUTS on 0–91 s, test 91–131 s (AR(1))", "nuts_ar1_train0-91_test91-131.summary.json"),
+    ("mechanistic, NUTS on 0–91 s, test 91–131 s (iid, 4 × (500 + 500), target acceptance 0.95; the initial "
+     "rates' prior from the record's still start)", "nuts_iid_train0-91_test91-131_record_start.summary.json"),
     ("+ FNN(u), last-layer NUTS on the whole record (iid, 4 chains)",
      "nuts_iid_fnn_u_last_layer_full.summary.json"),
     ("+ FNN(u), last-layer NUTS on 0–91 s, test 91–131 s (iid, 4 chains)",
@@ -40,6 +42,9 @@ POSTERIOR_ROWS = (
      "UNCONVERGED)", "laplace_iid_friction_offset_yaw_train0-91_test91-131.summary.json"),
     ("+ yaw coulomb_friction + yaw torque_offset, NUTS on 0–91 s, test 91–131 s (iid, 4 chains, ω_ψ(0) = 0; "
      "converged)", "nuts_iid_friction_offset_yaw_train0-91_test91-131_rest.summary.json"),
+    ("+ yaw coulomb_friction + yaw torque_offset, NUTS on 0–91 s, test 91–131 s (iid, 4 × (500 + 500), "
+     "target acceptance 0.95; the initial rates' prior from the record's still start; converged)",
+     "nuts_iid_friction_offset_yaw_train0-91_test91-131_record_start.summary.json"),
     ("+ yaw coulomb_friction + yaw stiction + yaw torque_offset, NUTS on 0–91 s, test 91–131 s (iid, 4 "
      "chains, ω_ψ(0) = 0; 23 % of draws at tree depth 6: UNCONVERGED; wall: the resumed draws only, the "
      "whole run 105 min with another job on the cores)",

@@ -27,7 +27,8 @@ POSTERIOR_ROWS = (
     ("mechanistic, NUTS on 0–91 s, test 91–131 s (iid)", "nuts_iid_train0-91_test91-131.summary.json"),
     ("mechanistic, NUTS on 0–91 s, test 91–131 s (AR(1))", "nuts_ar1_train0-91_test91-131.summary.json"),
     ("mechanistic, NUTS on 0–91 s, test 91–131 s (iid, 4 × (500 + 500), target acceptance 0.95; the initial "
-     "rates' prior from the record's still start)", "nuts_iid_train0-91_test91-131_record_start.summary.json"),
+     "rates' prior from the record's still start)",
+     "nuts_iid_train0-91_test91-131_record_start.summary.json"),
     ("+ FNN(u), last-layer NUTS on the whole record (iid, 4 chains)",
      "nuts_iid_fnn_u_last_layer_full.summary.json"),
     ("+ FNN(u), last-layer NUTS on 0–91 s, test 91–131 s (iid, 4 chains)",

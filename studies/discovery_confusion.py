@@ -58,6 +58,8 @@ from heli_uq.simulation import reference_solve, synthetic_experiment  # noqa: E4
 from heli_uq.simulation.synthetic import ENCODER_QUANTUM, RIG_RANGES, step_inputs  # noqa: E402
 
 #: Hidden value of each effect's parameters (bare names, SI), by axis.
+#: ``make_record``'s ``start``: factors on the rig fit's initial state (angles, rates).
+START_FACTORS = {"rig": np.ones(4), "rest": np.array([1.0, 1.0, 0.0, 0.0])}
 HIDDEN = {
     "yaw": {"deadband": {"delta": 0.3}, "coulomb_friction": {"F_c": 0.012},
             "quadratic_drag": {"c": 0.1}, "torsional_spring": {"k": 0.01, "psi_0": 0.5},
@@ -104,7 +106,7 @@ def jittered_base(seed: int, jitter: float) -> dict[str, float]:
 
 
 def make_record(case: str, inputs: str, seed: int, seconds: float, hidden=HIDDEN, base_jitter=0.0,
-                omega_s=None, hold=None):  # fmt: skip
+                omega_s=None, hold=None, start="rig"):  # fmt: skip
     """The synthetic record of ``case`` (``"none"`` or ``"axis:effect"``) and its truth.
 
     ``hidden`` gives the hidden values (default :data:`HIDDEN`, same layout);
@@ -112,7 +114,9 @@ def make_record(case: str, inputs: str, seed: int, seconds: float, hidden=HIDDEN
     ``omega_s`` [rad/s] the smoothing width of a hidden ``coulomb_friction`` (default the
     term's, which the candidates fit): another friction law than the fitted one;
     ``hold`` = ``(min, max)`` [s] the hold time of a ``rig_steps`` level (default the
-    package's 3-14 s): another staircase than the package's own.
+    package's 3-14 s): another staircase than the package's own; ``start`` ``"rig"`` the
+    rig fit's initial state (:data:`RIG_FIT_X0`, moving), ``"rest"`` its angles with both
+    rates 0 (a record that starts still, whose initial rates' prior reads the start).
     """
     effects = [] if case == "none" else case.split("+")
     if omega_s is not None:
@@ -133,7 +137,8 @@ def make_record(case: str, inputs: str, seed: int, seconds: float, hidden=HIDDEN
                         RIG_RANGES, hold)  # fmt: skip
     else:
         u = inputs
-    rec = synthetic_experiment(truth, RIG_FIT_X0, duration=seconds, inputs=u, noise_std=NOISE,
+    x0 = np.asarray(RIG_FIT_X0, dtype=float) * (START_FACTORS[start])
+    rec = synthetic_experiment(truth, x0, duration=seconds, inputs=u, noise_std=NOISE,
                                seed=seed, simulator=reference, quantum=ENCODER_QUANTUM)  # fmt: skip
     lo, hi = rec.y[:, 0].min(), rec.y[:, 0].max()
     if lo < PITCH_RANGE[0] or hi > PITCH_RANGE[1]:
@@ -145,7 +150,7 @@ def make_record(case: str, inputs: str, seed: int, seconds: float, hidden=HIDDEN
 
 def run_case(case: str, inputs: str, seed: int, args) -> dict:
     rec, truth, model = make_record(case, inputs, seed, args.seconds, args.hidden, args.base_jitter,
-                                    args.hidden_omega_s, args.hold)  # fmt: skip
+                                    args.hidden_omega_s, args.hold, args.start)  # fmt: skip
     split = 0.7 * args.seconds
     t0 = time.perf_counter()
     keep = args.keep and pathlib.Path(args.keep) / f"{case.replace(':', '_')}_{inputs}_{seed}"
@@ -182,6 +187,7 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
             **({"hidden_omega_s": args.hidden_omega_s}
                if args.hidden_omega_s is not None else {}),
             **({"hold": list(args.hold)} if args.hold is not None else {}),
+            **({"start": args.start} if args.start != "rig" else {}),
             **({"split": False} if args.no_split else {}),
             **({"fix": dict(args.fix)} if args.fix else {}),
             **({"refit": refit_facts(keep / "refit" / "summary.json")} if keep else {})}  # fmt: skip
@@ -307,6 +313,8 @@ def main(argv=None) -> int:
                          "fitted term's), e.g. 0.0002 for nearly exact stick-slip")
     ap.add_argument("--hold", type=_hold, default=None, metavar="MIN:MAX",
                     help="hold time [s] of a rig_steps level (default: the package's 3-14 s)")
+    ap.add_argument("--start", choices=sorted(START_FACTORS), default="rig",
+                    help="initial state: the rig fit's (rig, moving) or its angles at rest (rest)")
     ap.add_argument("--no-split", action="store_true",
                     help="no train/test split, as `heli-uq discover REC --out DIR` runs: the "
                          "candidates are fitted on the first 70 %% and scored on the rest, the "

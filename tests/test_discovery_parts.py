@@ -457,6 +457,60 @@ def test_tied_candidates_are_named_and_the_fitting_window_breaks_the_tie():
     assert choose(rows, results, n_scored, n_fit)["effect"] == "yaw:x"
 
 
+def test_the_laplace_evidence_breaks_a_tie_when_every_tied_fit_has_it():
+    """A dead band and an offset tied on held-out blocks: the log posterior at the MAP
+    favours the offset (its prior density is in 1/(N m), the dead band's in 1/V), the
+    evidence the dead band; with the evidence stored for both it decides and the margin
+    is reported, with one fit lacking it the BIC-penalised log posterior decides."""
+    from heli_uq.discovery.decide import choose
+    from heli_uq.discovery.report_page import tie_text
+
+    n_scored, n_fit, blocks = 4000, 9000, 8
+    scores = np.full(blocks, 4 * MARGIN_PER_SAMPLE * n_scored / blocks)
+    params = {"p": 0.0}
+    results = {"yaw:deadband": {"block_scores": scores + 0.1, "map_value": -1000.0, "log_evidence": 900.25,
+                                "map": {**params, "delta": 0.3}},
+               "yaw:torque_offset": {"block_scores": scores, "map_value": -1002.2, "log_evidence": 900.0,
+                                     "map": {**params, "T_0": 0.03}}}  # fmt: skip
+
+    def rows():
+        out = []
+        for key, res in results.items():
+            diff, se = compare(res["block_scores"], np.zeros(blocks))
+            out.append({"effect": key, "added": [key], "score": diff, "score_se": se,
+                        "passes": passes(res["block_scores"], np.zeros(blocks), n_scored),
+                        "supported": True})  # fmt: skip
+        return out
+
+    choice = choose(rows(), results, n_scored, n_fit)
+    assert choice["effect"] == "yaw:deadband" and "chosen_by" not in choice
+    assert choice["tie_break"]["by"] == "evidence"
+    assert choice["tie_break"]["margin"] == pytest.approx(0.25)
+    text = tie_text({"tied": ["yaw:torque_offset"], "tie_break": choice["tie_break"]})
+    assert "0.25 nats" in text and "cannot tell them apart" in text
+    del results["yaw:torque_offset"]["log_evidence"]  # a fit stored before the evidence was kept
+    choice = choose(rows(), results, n_scored, n_fit)
+    assert choice["effect"] == "yaw:torque_offset" and choice["chosen_by"] == "training fit"
+    assert choice["tie_break"] == {"by": "support", "margin": pytest.approx(2.2)}
+    assert "cannot tell" not in tie_text({"tied": ["yaw:deadband"], "tie_break": choice["tie_break"]})
+
+
+def test_the_laplace_evidence_is_the_integral_of_a_gaussian_posterior():
+    """``Start.log_evidence`` against quadrature: for ``-log p(x) = c + (x - m)' A (x - m) / 2``
+    (2-D, correlated) the integral of ``p`` over a grid equals ``exp`` of the evidence."""
+    from heli_uq.inference.start import Start
+
+    a = np.array([[400.0, -150.0], [-150.0, 100.0]])
+    m, c = np.array([0.3, -1.0]), 1234.5
+    start = Start(None, None, m, c, np.linalg.inv(a), 0.0)
+    sd = np.sqrt(np.diag(np.linalg.inv(a)))
+    g = [np.linspace(mi - 10 * si, mi + 10 * si, 801) for mi, si in zip(m, sd)]
+    x = np.stack(np.meshgrid(*g, indexing="ij"), axis=-1) - m
+    density = np.exp(-0.5 * np.einsum("...i,ij,...j", x, a, x))
+    quad = np.log(np.trapezoid(np.trapezoid(density, g[1]), g[0])) - c
+    assert start.log_evidence() == pytest.approx(quad, abs=1e-6)
+
+
 def test_the_pairs_hold_each_best_fitting_single_with_every_supported_other():
     """The single that fits 5th best is paired with the 2 best (the record of
     2026-11-28 whose dead band fitted 2nd and drag 5th), each pair once; the best

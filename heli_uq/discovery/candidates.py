@@ -285,6 +285,7 @@ def score_fitted(fitted: Fitted, task: FitTask) -> dict:
     dict
         ``effects``, ``map`` (physical parameters and initial state), ``n_fitted`` (the
         coordinates the MAP fitted: free parameters, initial state and error scales), ``map_value``,
+        ``log_evidence`` (the fitting window's Laplace evidence, :meth:`Start.log_evidence`),
         ``map_decrement``, ``substeps``, ``fit`` and ``score`` gap metrics (fitting and
         held-out window), ``block_scores`` [nats] and ``block_crps`` [rad] on the held-out
         window (:mod:`heli_uq.discovery.score`), ``laplace``
@@ -296,7 +297,8 @@ def score_fitted(fitted: Fitted, task: FitTask) -> dict:
     windows = problem.windows()
     a, b = windows["train"]
     out = {"effects": list(task.effects), "map": fitted.params, "n_fitted": int(np.size(fitted.start.x_map)),
-           "map_value": fitted.start.map_value, "map_decrement": fitted.start.map_decrement,
+           "map_value": fitted.start.map_value, "log_evidence": fitted.start.log_evidence(),
+           "map_decrement": fitted.start.map_decrement,
            "substeps": problem.substeps, "off_start": fitted.from_off, "laplace": fitted.importance,
            "fit": gap_metrics(fitted.y_sim[:, a:b], fitted.y_pred[:, a:b], problem.y[a:b])}  # fmt: skip
     c, d = windows["test"]

@@ -7,16 +7,17 @@ A model beats the current one if the deciding :class:`~heli_uq.discovery.score.C
 calibrated margin and is significant.  Single effects
 the best one does not beat by that rule are *tied* with it (effects can act alike on a
 record: a dead band below every voltage used is a torque offset); the fitting window's
-log posterior at the MAP, less a BIC penalty per parameter, breaks the tie.  A pair must
-beat the best single by the same rule.
+Laplace evidence breaks the tie (the log posterior at the MAP, less a BIC penalty per
+parameter, for stored fits without it).  A pair must beat the best single by the same rule.
 
-A model is added only if the fitting window *supports* it too: that BIC-penalised log
-posterior exceeds the current model's (``supported``).  An effect fitted to nothing (on
-the rig record a yaw spring of stiffness 3e-5 N m/rad, its MAP the base model's) can still
-score above the margin on held-out blocks where the current model is far off, because its
-free parameters (the spring's rest angle, its NUTS 95 % interval [-5.1, 5.8] rad) widen the predictive
-band; that gain is the band's, not the effect's (2026-11-28: +163 +- 66 nats, 0.04 per
-held-out sample, for the spring whose fitting-window log posterior gained nothing).
+A model is added only if the fitting window *supports* it too: its log posterior at the
+MAP, less a BIC penalty per parameter, exceeds the current model's (``supported``). An
+effect fitted to nothing (on the rig record a yaw spring of stiffness 3e-5 N m/rad, its
+MAP the base model's) can still score above the margin on held-out blocks where the
+current model is far off, because its free parameters (the spring's rest angle, its NUTS
+95 % interval [-5.1, 5.8] rad) widen the predictive band; that gain is the band's, not the
+effect's (2026-11-28: +163 +- 66 nats, 0.04 per held-out sample, for the spring whose
+fitting-window log posterior gained nothing).
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ def rank(results: dict, reference: dict, n_scored: int, n_fit: int,
                      "score_per_sample": diff / n_scored,
                      "passes": criterion.passes(res, reference, n_scored),
                      "held_out": res["score"], "fit": res["fit"], "map_value": res["map_value"],
+                     "log_evidence": res.get("log_evidence"),
                      "laplace": res.get("laplace"), "seconds": res["seconds"],
                      "support": float(support), "supported": bool(support > 0),
                      "crps_gain": crps[0], "crps_gain_se": crps[1], "crps_gain_fraction": crps[2],
@@ -115,21 +117,45 @@ def _training_support(result: dict, n_fit: int) -> float:
     return -float(result["map_value"]) - 0.5 * n * np.log(n_fit)
 
 
+def _tie_break_values(tied: list[dict], results: dict, n_fit: int) -> tuple[str, list[float]]:
+    """What breaks a tie among the rows ``tied``: ``("evidence", values)``, the fitting
+    window's Laplace evidence of each (``log_evidence`` [nats]) when every tied fit has it,
+    else ``("support", values)``, the BIC-penalised log posterior
+    (:func:`_training_support`; stored fits made before the evidence was kept).
+
+    Tied effects fit the data alike, so their log posteriors at the MAP differ mostly by
+    the prior densities, which carry units: a dead band's ``delta`` [V] against an
+    offset's ``T_0`` [N m] favours the offset by about ``log(1 / K)`` nats, ``K`` the
+    motor's gain [N m/V] (measured: 2.2 and 2.3 nats on two records with a hidden yaw dead
+    band, where the evidence favours the dead band by 0.25 and 0.05).  The evidence
+    integrates the prior over the posterior's width, so it compares them in one unit."""
+    fits = [results[r["effect"]] for r in tied]
+    if all("log_evidence" in f for f in fits):
+        return "evidence", [float(f["log_evidence"]) for f in fits]
+    return "support", [_training_support(f, n_fit) for f in fits]
+
+
 def _break_ties(best: dict, passing: list[dict], results: dict, n_scored: int, n_fit: int,
                 criterion: Criterion) -> dict:  # fmt: skip
     """Among the passing rows that ``best`` does not beat by the margin (``passes``), the
-    one the fitting window supports most (:func:`_training_support`).  Every tied row
+    one the fitting window supports most (:func:`_tie_break_values`).  Every tied row
     gets ``tied: True``; the chosen one ``chosen_by: "training fit"`` if it is not
-    ``best``.  Held-out blocks cannot separate effects that act alike on the record (a
-    dead band below every voltage used is a torque offset on the same motor's axes);
-    the fitting window is longer and breaks the tie, and the report names the rivals."""
+    ``best``, and ``tie_break``: ``{"by": "evidence" or "support", "margin": nats over
+    the runner-up}`` (a margin under 1 nat is a Bayes factor under e: the record does not
+    tell the rivals apart).  Held-out blocks cannot separate effects that act alike on the
+    record (a dead band below every voltage used is a torque offset on the same motor's
+    axes); the fitting window is longer and breaks the tie, and the report names the
+    rivals."""
     tied = [r for r in passing
             if r is best or not criterion.passes(results[best["effect"]], results[r["effect"]], n_scored)]
     if len(tied) == 1:
         return best
+    by, values = _tie_break_values(tied, results, n_fit)
+    order = np.argsort(values)[::-1]
+    chosen = tied[order[0]]
     for r in tied:
         r["tied"] = True
-    chosen = max(tied, key=lambda r: _training_support(results[r["effect"]], n_fit))
+    chosen["tie_break"] = {"by": by, "margin": float(values[order[0]] - values[order[1]])}
     if chosen is not best:
         chosen["chosen_by"] = "training fit"
     return chosen

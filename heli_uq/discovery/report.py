@@ -21,7 +21,7 @@ import numpy as np
 from heli_uq.discovery.budget import label as budget_label
 from heli_uq.discovery.candidates import FitTask, fitted_predictive, model_priors
 from heli_uq.discovery.candidates_figure import candidates_figure
-from heli_uq.discovery.report_page import gap_warnings, report_page
+from heli_uq.discovery.report_page import gap_warnings, report_page, tie_text
 from heli_uq.discovery.score import gain_text, gap_metrics, gap_text
 from heli_uq.figure import save_figure
 from heli_uq.io import atomic_write_text
@@ -94,8 +94,8 @@ def _candidate_rows(rows: list[dict]) -> list[dict]:
         row = {"effect": "+".join(kinds), "axis": "+".join(axes), "score": r["score"],
                "score_se": r["score_se"], "step": r["step"], "model": r["effect"]}  # fmt: skip
         for k in ("score_per_sample", "passes", "support", "supported", "crps_gain", "crps_gain_se",
-                  "crps_gain_fraction", "tied", "chosen_by", "held_out", "fit", "laplace", "seconds",
-                  "reused", "carried", "error"):
+                  "crps_gain_fraction", "log_evidence", "tied", "chosen_by", "tie_break", "held_out",
+                  "fit", "laplace", "seconds", "reused", "carried", "error"):
             if k in r:
                 row[k] = r[k]
         out.append(row)
@@ -236,9 +236,7 @@ def _decision(added, rows, steps, before, after, criterion="log", n_scored=1, he
         margin = "the calibrated margin" + (" of the held-out CRPS" if criterion == "crps" else "")
         return f"none: no candidate effect beats the base model by {margin}{why}."
     names = " and ".join(f"{e.split(':')[1]} on {e.split(':')[0]}" for e in added)
-    tied = steps[0].get("tied") or []
-    tie = (f" (tied on held-out blocks with {', '.join(tied)}; the fitting window decided)"
-           if tied else "")  # fmt: skip
+    tie = f" ({tie_text(steps[0])})" if steps[0].get("tied") else ""
     worse = gap_warnings(before, after)
     if health is not None and health.get("ok") is False:
         why = (health.get("warnings") or ["see refit/summary.json"])[0]

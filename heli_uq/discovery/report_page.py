@@ -12,7 +12,8 @@ import numpy as np
 from heli_uq.data import unseen_inputs
 from heli_uq.discovery.score import GAP_KEYS, MARGIN_CRPS_FRACTION, MARGIN_SE
 
-__all__ = ["report_page", "gap_warnings", "parameter_text", "CLOSER_V_FRACTION"]
+__all__ = ["report_page", "gap_warnings", "parameter_text", "tie_text", "CLOSER_V_FRACTION",
+           "TIE_EVIDENCE_NATS"]
 
 #: A first-step candidate whose held-out V is below this fraction of the base model's but
 #: whose held-out score is negative is named in the report (closer, yet overconfident).
@@ -50,6 +51,27 @@ def gap_warnings(before: dict, after: dict) -> list[str]:
                        f"{before[w]['rmse_psi']:.3f} -> {after[w]['rmse_psi']:.3f} rad)")  # fmt: skip
     return out
 
+
+
+#: A tie decided by less than this [nats] of log evidence is a Bayes factor under e, "not
+#: worth more than a bare mention" (Kass and Raftery 1995): the record does not tell the
+#: rivals apart.
+TIE_EVIDENCE_NATS = 1.0
+_TIE_BY = {"evidence": "the fitting window's Laplace evidence",
+           "support": "the fitting window's log posterior at the MAP, less a BIC penalty per parameter"}
+
+
+def tie_text(step: dict) -> str:
+    """How a step's tie was broken (``step["tied"]``, ``step["tie_break"]``, see
+    :func:`heli_uq.discovery.decide.choose`), as a clause."""
+    tb = step.get("tie_break") or {}
+    text = (f"tied on held-out blocks with {', '.join(step['tied'])}; "
+            f"{_TIE_BY.get(tb.get('by'), 'the fitting window')} decided")  # fmt: skip
+    if "margin" in tb:
+        text += f", by {tb['margin']:.2f} nats"
+        if tb.get("by") == "evidence" and tb["margin"] < TIE_EVIDENCE_NATS:
+            text += " (a Bayes factor under e: this record cannot tell them apart)"
+    return text
 
 
 def _fmt_gap(g: dict) -> str:
@@ -239,9 +261,7 @@ def report_page(result, where, ranking, steps, base, budget, fit_window, score_w
     for s in steps:
         what = ", ".join(s["added"]) if s["added"] else s.get("decision", "")
         if s.get("tied"):
-            what += (f" (tied on held-out blocks with {', '.join(s['tied'])}: no rival beats the other "
-                     "by the margin; the fitting window's log posterior at the MAP, less a BIC "
-                     "penalty per parameter, decided)")  # fmt: skip
+            what += f" ({tie_text(s)}; no rival beats the other by the margin)"
         lines.append(f"- step {s['step']}: {what}")
     lines += ["", "## 5. Before and after", "",
               "| window | model | RMSE pitch [rad] | RMSE yaw [rad] | V [rad^2] | 90 % pitch | 90 % yaw |",

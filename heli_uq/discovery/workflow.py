@@ -41,10 +41,10 @@ Steps (the module of each in parentheses):
    :data:`~heli_uq.discovery.score.MARGIN_CRPS_FRACTION` of the current model's CRPS
    (:class:`~heli_uq.discovery.score.Criterion`).  Single effects that the best one does
    not beat by that margin are *tied* with it (effects can act alike on a record: a dead
-   band below every voltage used is a torque offset); the fitting window's log posterior
-   at the MAP with a BIC penalty per parameter breaks the tie, and the report names the
-   rivals.  A model must also be *supported* by the fitting window (that penalised log
-   posterior above the current model's): an effect fitted to nothing can widen the
+   band below every voltage used is a torque offset); the fitting window's Laplace
+   evidence breaks the tie, and the report names the rivals and says by how much.  A
+   model must also be *supported* by the fitting window (its log posterior at the MAP,
+   less a BIC penalty per parameter, above the current model's): an effect fitted to nothing can widen the
    predictive band and so score on held-out blocks where the current model is far off.
    Among models that pass, one more effect must again pass the margin against the smaller
    model (parsimony).  With ``max_effects > 1`` the step repeats from the chosen model
@@ -320,7 +320,8 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         steps.append({"step": len(steps) + 1, "added": added, "score": choice["score"],
                       "score_se": choice["score_se"], "crps_gain": choice["crps_gain"],
                       "crps_gain_se": choice["crps_gain_se"],
-                      "tied": [r["effect"] for r in rows if r.get("tied") and r is not choice]})  # fmt: skip
+                      "tied": [r["effect"] for r in rows if r.get("tied") and r is not choice],
+                      **({"tie_break": choice["tie_break"]} if "tie_break" in choice else {})})  # fmt: skip
         gain = gain_text(steps[-1], criterion.name, n_scored)
         say(f"step {len(steps)}: adding {', '.join(added)} (held-out score {gain})")
         current = current + added

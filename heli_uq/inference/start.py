@@ -200,6 +200,15 @@ class Start:
     #: Largest decrement [nats] at which this start counts as converged (the health check).
     map_decrement_max: float = MAP_DECREMENT_MAX
 
+    def log_evidence(self) -> float:
+        """The Laplace approximation of the log marginal likelihood of the data [nats]:
+        ``-map_value + 0.5 log det(2 pi covariance)``.  ``map_value`` is ``-log p`` in the
+        sampler's unconstrained coordinates, their Jacobian included, so the value does
+        not depend on the units or coordinates of the parameters (a log posterior density
+        at the MAP does)."""
+        _, logdet = np.linalg.slogdet(2.0 * np.pi * np.asarray(self.covariance))
+        return -float(self.map_value) + 0.5 * float(logdet)
+
     def laplace_draws(self, n: int, seed: int = 0) -> dict:
         """``n`` draws of the Laplace approximation at the MAP (Gaussian in the sampler's
         unconstrained coordinates, so skewed in physical units), as constrained sites:

@@ -57,9 +57,9 @@ from heli_uq.probability.priors import parse_prior_option  # noqa: E402
 from heli_uq.simulation import reference_solve, synthetic_experiment  # noqa: E402
 from heli_uq.simulation.synthetic import ENCODER_QUANTUM, RIG_RANGES, step_inputs  # noqa: E402
 
-#: Hidden value of each effect's parameters (bare names, SI), by axis.
 #: ``make_record``'s ``start``: factors on the rig fit's initial state (angles, rates).
 START_FACTORS = {"rig": np.ones(4), "rest": np.array([1.0, 1.0, 0.0, 0.0])}
+#: Hidden value of each effect's parameters (bare names, SI), by axis.
 HIDDEN = {
     "yaw": {"deadband": {"delta": 0.3}, "coulomb_friction": {"F_c": 0.012},
             "quadratic_drag": {"c": 0.1}, "torsional_spring": {"k": 0.01, "psi_0": 0.5},
@@ -137,7 +137,7 @@ def make_record(case: str, inputs: str, seed: int, seconds: float, hidden=HIDDEN
                         RIG_RANGES, hold)  # fmt: skip
     else:
         u = inputs
-    x0 = np.asarray(RIG_FIT_X0, dtype=float) * (START_FACTORS[start])
+    x0 = np.asarray(RIG_FIT_X0, dtype=float) * START_FACTORS[start]
     rec = synthetic_experiment(truth, x0, duration=seconds, inputs=u, noise_std=NOISE,
                                seed=seed, simulator=reference, quantum=ENCODER_QUANTUM)  # fmt: skip
     lo, hi = rec.y[:, 0].min(), rec.y[:, 0].max()

@@ -44,8 +44,9 @@ Steps (the module of each in parentheses):
    band below every voltage used is a torque offset); the fitting window's Laplace
    evidence breaks the tie, and the report names the rivals and says by how much.  A
    model must also be *supported* by the fitting window (its log posterior at the MAP,
-   less a BIC penalty per parameter, above the current model's): an effect fitted to nothing can widen the
-   predictive band and so score on held-out blocks where the current model is far off.
+   less a BIC penalty per parameter, above the current model's): an effect fitted to
+   nothing can widen the predictive band and so score on held-out blocks where the
+   current model is far off.
    Among models that pass, one more effect must again pass the margin against the smaller
    model (parsimony).  With ``max_effects > 1`` the step repeats from the chosen model
    until nothing passes.

@@ -7,7 +7,7 @@ import numpy as np
 from heli_uq.data import Experiment, initial_rates
 from heli_uq.inference.density import log_density_setup
 from heli_uq.inference.least_squares import x0_guess
-from heli_uq.model import Prior
+from heli_uq.model import Prior, build_model
 from heli_uq.probability import PriorSet, make_problem
 from heli_uq.probability.priors import X0_ANGLE_SD, X0_RATE_FLOOR, X0_RATE_SD, RecordStart
 from heli_uq.simulation import synthetic_experiment
@@ -117,6 +117,35 @@ def test_the_problem_takes_the_default_from_the_record_and_a_named_prior_wins():
                                                     "omega_theta0": 0.0})  # fmt: skip
     changed = make_problem(rec, error="iid", priors=named).x0_priors()
     assert changed[2:] == (Prior("fixed", 0.0), Prior("normal", 0.0, 0.3))
+
+
+def test_the_models_friction_says_which_axes_it_can_hold_still():
+    assert build_model().held_still == (False, False)
+    assert build_model(["yaw:coulomb_friction"]).held_still == (False, True)
+    assert build_model(["pitch:stiction", "yaw:quadratic_drag"]).held_still == (True, False)
+    assert build_model(["yaw:deadband", "yaw:torque_offset"]).held_still == (False, False)
+
+
+def test_a_still_axis_held_by_friction_starts_at_rest_and_a_named_prior_wins():
+    """Friction stops a small initial rate after a slide the initial angle absorbs (the
+    ridge of the module docstring), so a still axis it holds starts at rate 0; the other
+    axis keeps its measured prior, a moving start the wide one."""
+    rec = _record_with_still_start(1)
+    start = RecordStart.of(rec.y, rec.dt, rec.u)
+    model = build_model(["yaw:coulomb_friction"])
+    priors = make_problem(rec, model=model, error="iid").x0_priors()
+    assert priors[2:] == (start.rate_prior(0), Prior("fixed", 0.0))
+    assert priors[2].kind == "normal"
+    both = build_model(["pitch:stiction", "yaw:coulomb_friction"])
+    assert make_problem(rec, model=both, error="iid").x0_priors()[2:] == (Prior("fixed", 0.0),) * 2
+    wide = Prior("normal", 0.0, 0.3)
+    named = PriorSet.default(model).updated(model, {"omega_psi0": wide})
+    assert make_problem(rec, model=model, priors=named, error="iid").x0_priors()[3] == wide
+    moving = synthetic_experiment(duration=1.5, seed=2, x0=(-0.5, 0.2, 0, 0))
+    moving_priors = make_problem(moving, model=model, error="iid").x0_priors()
+    assert moving_priors[2:] == (Prior("normal", 0.0, X0_RATE_SD),) * 2
+    problem = make_problem(rec, model=model, error="iid")
+    assert x0_guess(problem)[3] == 0.0
 
 
 def test_records_with_other_starts_share_compiled_programs():

@@ -23,8 +23,8 @@ __all__ = ["FIT_VERSION", "CandidateStore", "run_round", "task_signature"]
 #: (2: the Laplace draws are importance-resampled before scoring, or the MAP's plug-in
 #: predictive when Pareto k rejects them; 3: a term's start grid adds a MAP start, e.g.
 #: a dead band between the record's voltage levels; 4: the held-out CRPS is stored beside
-#: the log score).
-FIT_VERSION = 4
+#: the log score; 5: a still axis that a friction term holds starts at rate 0).
+FIT_VERSION = 5
 
 
 def task_signature(record: Experiment, task: FitTask) -> str:

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from heli_uq.errors import ParameterError
-from heli_uq.model.parameter import Parameter, check_value
+from heli_uq.model.parameter import AXES, Parameter, check_value
 from heli_uq.model.terms.base import AbstractInputMap, AbstractTorque
 from heli_uq.model.terms.linear_torque import LinearTorque
 from heli_uq.model.terms.rigid_body import (
@@ -221,6 +221,13 @@ class HeliModel(eqx.Module):
         """True if some torque depends on the voltages only (``input_only``): the simulator
         then evaluates those once per sample (:meth:`held_torque`), not at every stage."""
         return any(t.input_only for t in self.torques)
+
+    @property
+    def held_still(self) -> tuple[bool, bool]:
+        """Per axis (pitch, yaw), whether a friction term (:attr:`AbstractTorque.holds_still`)
+        can hold it at rest."""
+        axes = {t.axis for t in self.torques if t.holds_still}
+        return tuple(axis in axes for axis in AXES)
 
     def held_torque(self, p, u):
         """Sum of the ``input_only`` torques at voltages ``u`` (2,) [V] before the input

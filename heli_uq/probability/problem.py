@@ -71,9 +71,10 @@ class Problem:
 
     def x0_priors(self) -> tuple:
         """The priors of ``theta0, psi0, omega_theta0, omega_psi0`` (in that order): each
-        one set by name, else the default from :attr:`record_start`."""
-        start = self.record_start
-        return tuple(self.priors.x0_prior(name, start) for name in X0_NAMES)
+        one set by name, else the default from :attr:`record_start` and the model's
+        friction terms (:meth:`PriorSet.x0_prior`)."""
+        start, held = self.record_start, self.model.held_still
+        return tuple(self.priors.x0_prior(name, start, held) for name in X0_NAMES)
 
     def windows(self) -> dict[str, tuple[int, int]]:
         """``{"train": (0, n_train), "test": (start, stop)}`` sample-index ranges."""

@@ -186,6 +186,11 @@ class AbstractTorque(AbstractTerm):
         on the term's configuration)."""
         return False
 
+    #: True for a friction law that holds its axis (:attr:`axis`) still against a torque
+    #: below its level: on a record that starts still such an axis starts at rest, and its
+    #: initial rate is fixed at 0 (:meth:`heli_uq.probability.RecordStart.rate_prior`).
+    holds_still: ClassVar[bool] = False
+
     @abc.abstractmethod
     def __call__(self, p, x, v, u):
         raise NotImplementedError

@@ -51,6 +51,7 @@ class CoulombFriction(AbstractEffect, AbstractTorque):
 
     kind: ClassVar[str] = "coulomb_friction"
     input_only: ClassVar[bool] = False
+    holds_still: ClassVar[bool] = True
     axis: str = eqx.field(static=True, default="yaw")
     omega_s: float = eqx.field(static=True, default=OMEGA_S)
 

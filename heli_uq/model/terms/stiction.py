@@ -46,6 +46,7 @@ class Stiction(AbstractEffect, AbstractTorque):
 
     kind: ClassVar[str] = "stiction"
     input_only: ClassVar[bool] = False
+    holds_still: ClassVar[bool] = True
     axis: str = eqx.field(static=True, default="yaw")
     omega_s: float = eqx.field(static=True, default=OMEGA_S)
     omega_b: float = eqx.field(static=True, default=OMEGA_B)

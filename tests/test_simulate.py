@@ -9,7 +9,9 @@ from reference import reference_solution
 import heli_uq
 from heli_uq import RESULTS, TABLE1, loss_v, simulate, solve
 from heli_uq.data import load_experimental
-from heli_uq.model import HeliModel
+from heli_uq.model import HeliModel, build_model
+from heli_uq.simulation import default_substeps
+from heli_uq.simulation.reference import solver_error
 
 ACCURACY_RAD = 1e-6  # max |theta|, |psi| error vs the tight reference (issue requirement)
 GRAD_FD_RTOL = 1e-5  # relative agreement of the adjoint gradient with central differences
@@ -65,6 +67,30 @@ def test_substeps_converge_to_reference():
     assert errs[2] < errs[1] < errs[0]
     # fourth order: halving the step divides the error by ~16
     assert errs[0] / errs[1] > 10 and errs[1] / errs[2] > 10
+
+
+#: A light, heavily damped pitch, as a fit imitating a hidden pitch friction found it (a
+#: discovery candidate's MAP on a synthetic record): ``D_theta / M11`` about 320 /s, past
+#: RK4's stability limit 2.785 at one substep of 0.01 s.
+OVERDAMPED = dict(TABLE1, r_c=0.01031, h=0.00206, m=0.77185, J_bc=0.00146, J_s=0.12579,
+                  K_theta_theta=0.05665, K_theta_psi=0.00035, K_psi_theta=0.03017, K_psi_psi=0.044,
+                  D_theta=0.5, D_psi=0.15444)  # fmt: skip
+
+
+def test_substeps_cover_a_heavy_viscous_damping():
+    """At one substep the overdamped pitch's fast mode blows up; ``default_substeps``
+    counts the damping's rate ``D / M`` and the solve then follows the stiff reference."""
+    rng = np.random.default_rng(5)
+    u = np.repeat(rng.uniform([1.2, 0.5], [1.5, 1.6], size=(10, 2)), 100, axis=0)
+    x0 = np.array([-0.55, 1.0, 0.0, 0.0])
+    model = build_model()
+    m11 = model.mechanics.inertia_bounds(OVERDAMPED)[0]
+    assert OVERDAMPED["D_theta"] / m11 * 0.01 > 2.785
+    n = default_substeps(model, OVERDAMPED, 0.01)
+    assert n == int(np.ceil(OVERDAMPED["D_theta"] / m11 * 0.01 / 1.4))
+    assert not bool(solve(OVERDAMPED, x0, u, 0.01, substeps=1).ok)
+    assert solver_error(OVERDAMPED, x0, u, 0.01, substeps=n) < ACCURACY_RAD  # 2.4e-7 at 3
+    assert default_substeps(model, FITTED, 0.01) == 1  # Table 1's damping: 1 substep
 
 
 def _loss_fn(u, y_data, dt):

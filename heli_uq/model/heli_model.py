@@ -267,7 +267,7 @@ class HeliModel(eqx.Module):
         a = self.acceleration(self.prepare(p), y[:2], y[2:], u)
         return jnp.concatenate([y[2:], a])
 
-    def stiffness(self, p, thetas=None):
+    def stiffness(self, p, thetas=None, *, decay: bool = False):
         """Largest rate [1/s] the terms add near rest, on either axis (0 for the linear model).
 
         The rates of the terms on one axis add (Coulomb friction and stiction on yaw both
@@ -275,7 +275,9 @@ class HeliModel(eqx.Module):
         rate that is not finite is left out.  ``p``: values by name, scalars (a float is
         returned) or arrays of one shape, e.g. ``(n,)`` posterior draws (an array of that
         shape is returned).  ``thetas``: the pitch angles [rad] the yaw inertia is taken
-        over (default all).
+        over (default all).  ``decay``: the terms' linear decay rates
+        (:meth:`~heli_uq.model.terms.base.AbstractTerm.decay_rate`, the viscous damping's)
+        add to every axis, for one point's solve.
         """
         p = {k: np.asarray(v, dtype=float) for k, v in p.items()}
         inertia = self.mechanics.inertia_bounds(p, thetas)
@@ -284,8 +286,11 @@ class HeliModel(eqx.Module):
             rate = np.asarray(term.stiffness(p, inertia), dtype=float)
             axis = getattr(term, "axis", None)
             per_axis[axis] = per_axis.get(axis, 0.0) + np.where(np.isfinite(rate), rate, 0.0)
+        shared = sum(np.asarray(t.decay_rate(p, inertia), dtype=float) for t in self.terms) if decay else 0.0
+        shared = np.where(np.isfinite(shared), shared, 0.0)
         shape = np.broadcast_shapes(*(np.shape(v) for v in p.values()))
-        rate = np.maximum.reduce([np.zeros(shape), *(np.broadcast_to(r, shape) for r in per_axis.values())])
+        sums = (np.broadcast_to(r + shared, shape) for r in per_axis.values())
+        rate = np.maximum.reduce([np.zeros(shape), *sums])
         return float(rate) if rate.ndim == 0 else rate
 
     # ---------------------------------------------------------- description

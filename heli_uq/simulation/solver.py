@@ -383,9 +383,9 @@ def default_substeps(model: HeliModel, params: Mapping, dt: float, *, margin: fl
 
     ``rate`` is the model's largest stiffness rate near rest (:meth:`HeliModel.stiffness`,
     e.g. ``F_c / (omega_s M22)`` for smoothed friction, with ``M22`` the smallest yaw
-    inertia over the pitch angles ``thetas`` [rad], default all) and 1.4
-    (:data:`STABLE_STEP`) is half RK4's stability limit on a decaying mode.  1 for models
-    without stiff terms.
+    inertia over the pitch angles ``thetas`` [rad], default all), the viscous damping's
+    ``D / M`` included (one point), and 1.4 (:data:`STABLE_STEP`) is half RK4's stability
+    limit on a decaying mode.  1 at the rig's parameters without stiff terms.
     """
-    rate = model.stiffness(model.complete(params), thetas)
+    rate = model.stiffness(model.complete(params), thetas, decay=True)
     return max(1, math.ceil(margin * rate * float(dt) / STABLE_STEP))

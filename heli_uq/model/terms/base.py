@@ -165,6 +165,13 @@ class AbstractTerm(eqx.Module):
         """
         return 0.0
 
+    def decay_rate(self, p, inertia) -> float:
+        """Rate [1/s] of a linear decaying mode this term adds at rest, which one point's
+        solve must resolve and a posterior's spread need not (0 by default): past RK4's
+        limit a linear mode blows up, so a draw there fails visibly, where a friction
+        draw (:meth:`stiffness`) would drift silently.  Arguments as for :meth:`stiffness`."""
+        return 0.0
+
 
 class AbstractTorque(AbstractTerm):
     """A generalized-force term ``(p, x, v, u) -> (T_theta, T_psi)`` [N m], a pair of scalars

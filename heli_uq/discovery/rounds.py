@@ -23,8 +23,9 @@ __all__ = ["FIT_VERSION", "CandidateStore", "run_round", "task_signature"]
 #: (2: the Laplace draws are importance-resampled before scoring, or the MAP's plug-in
 #: predictive when Pareto k rejects them; 3: a term's start grid adds a MAP start, e.g.
 #: a dead band between the record's voltage levels; 4: the held-out CRPS is stored beside
-#: the log score; 5: a still axis that a friction term holds starts at rate 0).
-FIT_VERSION = 5
+#: the log score; 5: a still axis that a friction term holds starts at rate 0; 6: the MAP's
+#: substeps cover the viscous damping's decay).
+FIT_VERSION = 6
 
 
 def task_signature(record: Experiment, task: FitTask) -> str:

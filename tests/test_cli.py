@@ -219,7 +219,7 @@ def test_diverging_parameters_exit_1(tmp_path, capsys):
                        "--out", str(tmp_path / "out"))
     assert code == 1
     assert "Traceback" not in err
-    assert len(err.strip().splitlines()) == 1 and "diverged" in err
+    assert len(err.strip().splitlines()) == 1 and "diverged" in err and "too stiff" in err
     assert not (tmp_path / "out" / "simulation.csv").exists()
 
 

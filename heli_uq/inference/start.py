@@ -42,7 +42,7 @@ from heli_uq.inference.map import NEWTON_STEPS, find_map, laplace, leave_saddles
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.probability.problem import Problem
-from heli_uq.simulation.solver import default_substeps
+from heli_uq.simulation.solver import MAX_SUBSTEPS, default_substeps
 from heli_uq.simulation.stiffness import stiffness_rates, substeps_covering
 
 __all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "startable", "initial_draws",
@@ -53,10 +53,6 @@ __all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "startabl
 #: the 99.8 % quantile of the rate).  The output stage checks every posterior draw again
 #: (:func:`heli_uq.simulation.stiffness.stiffness_check`).
 TAIL_DRAWS = 256
-#: Most substeps :func:`prepare_start` gives a problem.  A MAP that needs more (friction
-#: far sharper than the rig's) is left at this number, with a warning: such a stiff mode
-#: is better smoothed (a larger ``omega_s``) than resolved.
-MAX_SUBSTEPS = 16
 #: Newton steps of the MAP of a model with a neural term.  Its posterior is not convex (the
 #: weights' symmetries, flat directions where the prior dominates), so the decrement falls
 #: slowly and rarely reaches NEWTON_TOL; each step costs 2 d gradients (d ~ 30-150), so

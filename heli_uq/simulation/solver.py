@@ -40,7 +40,7 @@ from heli_uq.errors import ParameterError
 from heli_uq.model.heli_model import HeliModel
 
 __all__ = ["simulate", "solve", "Solution", "RESULTS", "MAX_ABS_STATE", "MAX_SAMPLES",
-           "default_substeps", "STABLE_STEP"]  # fmt: skip
+           "default_substeps", "STABLE_STEP", "MAX_SUBSTEPS"]  # fmt: skip
 
 #: A state component beyond this magnitude (rad or rad/s) counts as a blow-up.
 MAX_ABS_STATE = 1.0e4
@@ -52,6 +52,11 @@ MAX_SAMPLES = 10_000_000
 #: chunks of 16,384 against 41 ms all at once; at 1 substep (one chunk) 4.7 ms either way.
 ADJOINT_CHUNK = 16_384
 
+#: Most substeps a solve is given (:func:`heli_uq.inference.prepare_start`, ``simulate``,
+#: synthetic records).  A model that needs more (friction far sharper than the rig's, or
+#: absurd inertias) is left at this number, with a warning or a failed solve: such a stiff
+#: mode is better smoothed (a larger ``omega_s``) than resolved.
+MAX_SUBSTEPS = 16
 #: ``rate * h`` at which :func:`default_substeps` places an RK4 step: half the stability
 #: limit 2.785 of RK4 on a decaying mode, which keeps its settling error small.
 STABLE_STEP = 1.4

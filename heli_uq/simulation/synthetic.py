@@ -151,12 +151,13 @@ def synthetic_experiment(
 
 def _model_simulator(model, params, dt, substeps):
     from heli_uq.model.heli_model import HeliModel
-    from heli_uq.simulation.solver import default_substeps, simulate
+    from heli_uq.simulation.solver import MAX_SUBSTEPS, default_substeps, simulate
 
     model = HeliModel() if model is None else model
-    n_sub = default_substeps(model, params, dt, margin=2.0) if substeps is None else substeps
+    if substeps is None:
+        substeps = min(default_substeps(model, params, dt, margin=2.0), MAX_SUBSTEPS)
 
     def run(p, x0, u, step):
-        return simulate(p, x0, u, step, model=model, substeps=n_sub)
+        return simulate(p, x0, u, step, model=model, substeps=substeps)
 
     return run

@@ -6,6 +6,7 @@ tests (parameter recovery, hidden effects).
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
@@ -155,7 +156,12 @@ def _model_simulator(model, params, dt, substeps):
 
     model = HeliModel() if model is None else model
     if substeps is None:
-        substeps = min(default_substeps(model, params, dt, margin=2.0), MAX_SUBSTEPS)
+        need = default_substeps(model, params, dt, margin=2.0)
+        if need > MAX_SUBSTEPS:
+            logging.getLogger(__name__).warning(
+                f"synthetic record: the model needs {need} solver substeps per sample; using "
+                f"{MAX_SUBSTEPS} (MAX_SUBSTEPS): the record may be inaccurate or diverge")
+        substeps = min(need, MAX_SUBSTEPS)
 
     def run(p, x0, u, step):
         return simulate(p, x0, u, step, model=model, substeps=substeps)

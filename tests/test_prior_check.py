@@ -9,14 +9,13 @@ import pytest
 
 from heli_uq.cli.main import main
 from heli_uq.errors import ParameterError
-from heli_uq.inference.start import MAX_SUBSTEPS
 from heli_uq.model import TABLE1, HeliModel, build_model
 from heli_uq.model.prior import Prior
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.output.prior_check import COVERAGE_NOTE, prior_draws, prior_predictive_check
 from heli_uq.probability import PriorSet, make_problem
 from heli_uq.simulation import SYNTHETIC_PARAMS, SYNTHETIC_X0, synthetic_experiment
-from heli_uq.simulation.solver import STABLE_STEP
+from heli_uq.simulation.solver import MAX_SUBSTEPS, STABLE_STEP
 from heli_uq.simulation.stiffness import stiffness_rates
 
 NOISE = 0.002  # rad: the synthetic record's noise sd on both angles

@@ -128,7 +128,7 @@ def simulate_to_files(out: Path, params: dict, x0, u, dt: float, *, model=None, 
     from heli_uq.output.plots import plot_simulation, save_figure
     from heli_uq.probability.likelihood import loss_v
     from heli_uq.simulation.physical import physical_range
-    from heli_uq.simulation.solver import MAX_SUBSTEPS, RESULTS, default_substeps, solve
+    from heli_uq.simulation.solver import MAX_SUBSTEPS, RESULTS, capped_substeps, default_substeps, solve
 
     model = HeliModel() if model is None else model
     params = {k: float(v) for k, v in model.complete(params).items()}
@@ -141,6 +141,7 @@ def simulate_to_files(out: Path, params: dict, x0, u, dt: float, *, model=None, 
                  f"{MAX_SUBSTEPS} at most") if need > MAX_SUBSTEPS else ""  # fmt: skip
         return 1, (f"simulation diverged for these parameters ({kind}; parameters {params_label}, "
                    f"x0={tuple(float(v) for v in x0)}{stiff}); nothing written")  # fmt: skip
+    capped_substeps(need, "the model")  # a solve at the cap is kept, with a warning
     ts = np.asarray(sol.ts, dtype=float)
     if record is not None:
         ts = ts + float(record.t[0])

@@ -42,7 +42,7 @@ from heli_uq.inference.map import NEWTON_STEPS, find_map, laplace, leave_saddles
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.probability.problem import Problem
-from heli_uq.simulation.solver import MAX_SUBSTEPS, default_substeps
+from heli_uq.simulation.solver import MAX_SUBSTEPS, capped_substeps, default_substeps
 from heli_uq.simulation.stiffness import stiffness_rates, substeps_covering
 
 __all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "startable", "initial_draws",
@@ -278,15 +278,6 @@ def tail_substeps(problem: Problem, density: LogDensity, x_map, cov, seed: int =
     return substeps_covering(rates[np.isfinite(rates)], problem.dt)
 
 
-def _capped(need: int, what: str) -> int:
-    if need > MAX_SUBSTEPS:
-        logging.getLogger(__name__).warning(
-            f"{what} needs {need} solver substeps per sample for its stiffest term; using "
-            f"{MAX_SUBSTEPS} (MAX_SUBSTEPS): the simulation may be inaccurate; consider "
-            "smoother friction (a larger omega_s)")
-    return min(need, MAX_SUBSTEPS)
-
-
 def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
                   map_maxiter: int = 0, guesses=(), newton_steps: int | None = None,
                   polish_best: int | None = None, abandon_above: float | None = None,
@@ -342,14 +333,14 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
     for _ in range(3):  # raise the substeps until the MAP's stiffness is covered
         sites = density.unravel(jnp.asarray(x_map))
         phys = {k: float(v) for k, v in problem.coords.to_physical(_full_z(problem, sites)).items()}
-        need = _capped(required_substeps(problem, phys), "the MAP")
+        need = capped_substeps(required_substeps(problem, phys), "the MAP")
         if need <= problem.substeps:
             break
         problem = problem.with_substeps(need)
         density = log_density_setup(problem, seed=seed)
         x_map, value, grad_max, decrement, _ = newton_polish(density, x_map, max(newton_steps, 1))
     _, cov = laplace(density, x_map)
-    need = _capped(tail_substeps(problem, density, x_map, cov, seed), "the Laplace approximation")
+    need = capped_substeps(tail_substeps(problem, density, x_map, cov, seed), "the Laplace approximation")
     if need > problem.substeps:  # the posterior's spread reaches stiffer models than its mode
         logging.getLogger(__name__).info(f"solver substeps {problem.substeps} -> {need}: the stiffest "
                                          f"of {TAIL_DRAWS} Laplace draws needs them")  # fmt: skip

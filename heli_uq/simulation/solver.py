@@ -25,6 +25,7 @@ reverse-mode autodiff to ~1e-13).
 from __future__ import annotations
 
 import enum
+import logging
 import math
 from collections.abc import Mapping
 
@@ -40,7 +41,7 @@ from heli_uq.errors import ParameterError
 from heli_uq.model.heli_model import HeliModel
 
 __all__ = ["simulate", "solve", "Solution", "RESULTS", "MAX_ABS_STATE", "MAX_SAMPLES",
-           "default_substeps", "STABLE_STEP", "MAX_SUBSTEPS"]  # fmt: skip
+           "default_substeps", "capped_substeps", "STABLE_STEP", "MAX_SUBSTEPS"]  # fmt: skip
 
 #: A state component beyond this magnitude (rad or rad/s) counts as a blow-up.
 MAX_ABS_STATE = 1.0e4
@@ -380,6 +381,17 @@ def simulate(params: Mapping | None, x0, u, dt, *, model: HeliModel | None = Non
     (100, 4)
     """
     return solve(params, x0, u, dt, model=model, substeps=substeps, gradients=gradients).ys
+
+
+def capped_substeps(need: int, what: str) -> int:
+    """``min(need, MAX_SUBSTEPS)``, with a warning naming ``what`` (e.g. ``"the MAP"``) when
+    the cap is reached."""
+    if need > MAX_SUBSTEPS:
+        logging.getLogger(__name__).warning(
+            f"{what} needs {need} solver substeps per sample for its stiffest mode; using "
+            f"{MAX_SUBSTEPS} (MAX_SUBSTEPS): the simulation may be inaccurate or diverge; for a "
+            "sharp friction consider a smoother one (a larger omega_s)")
+    return min(need, MAX_SUBSTEPS)
 
 
 def default_substeps(model: HeliModel, params: Mapping, dt: float, *, margin: float = 1.0,

@@ -6,7 +6,6 @@ tests (parameter recovery, hidden effects).
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
@@ -152,16 +151,11 @@ def synthetic_experiment(
 
 def _model_simulator(model, params, dt, substeps):
     from heli_uq.model.heli_model import HeliModel
-    from heli_uq.simulation.solver import MAX_SUBSTEPS, default_substeps, simulate
+    from heli_uq.simulation.solver import capped_substeps, default_substeps, simulate
 
     model = HeliModel() if model is None else model
     if substeps is None:
-        need = default_substeps(model, params, dt, margin=2.0)
-        if need > MAX_SUBSTEPS:
-            logging.getLogger(__name__).warning(
-                f"synthetic record: the model needs {need} solver substeps per sample; using "
-                f"{MAX_SUBSTEPS} (MAX_SUBSTEPS): the record may be inaccurate or diverge")
-        substeps = min(need, MAX_SUBSTEPS)
+        substeps = capped_substeps(default_substeps(model, params, dt, margin=2.0), "a synthetic record")
 
     def run(p, x0, u, step):
         return simulate(p, x0, u, step, model=model, substeps=substeps)

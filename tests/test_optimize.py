@@ -302,14 +302,14 @@ def test_substeps_cap_is_a_logged_warning(synthetic_problem, monkeypatch, caplog
     import logging
 
     from heli_uq.inference import start as start_module
-    from heli_uq.simulation import solver
+    from heli_uq.simulation import stiffness
 
     monkeypatch.setattr(start_module, "required_substeps", lambda problem, params: 99)
-    monkeypatch.setattr(solver, "MAX_SUBSTEPS", synthetic_problem.substeps)
+    monkeypatch.setattr(stiffness, "MAX_SUBSTEPS", synthetic_problem.substeps)
     with caplog.at_level(logging.WARNING, logger="heli_uq"):
         start = start_module.prepare_start(synthetic_problem, n_starts=1, seed=0)
     assert start.problem.substeps == synthetic_problem.substeps
-    lines = [r.getMessage() for r in caplog.records if r.name == "heli_uq.simulation.solver"]
+    lines = [r.getMessage() for r in caplog.records if r.name == "heli_uq.simulation.stiffness"]
     assert len(lines) == 1 and "the MAP needs 99 solver substeps" in lines[0], lines
 
 

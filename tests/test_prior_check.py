@@ -15,8 +15,7 @@ from heli_uq.model.tables import X0_NAMES
 from heli_uq.output.prior_check import COVERAGE_NOTE, prior_draws, prior_predictive_check
 from heli_uq.probability import PriorSet, make_problem
 from heli_uq.simulation import SYNTHETIC_PARAMS, SYNTHETIC_X0, synthetic_experiment
-from heli_uq.simulation.solver import MAX_SUBSTEPS, STABLE_STEP
-from heli_uq.simulation.stiffness import stiffness_rates
+from heli_uq.simulation.stiffness import MAX_SUBSTEPS, STABLE_STEP, stiffness_rates
 
 NOISE = 0.002  # rad: the synthetic record's noise sd on both angles
 #: Draws of the moment test, and how many standard errors a mean may be off.

@@ -96,17 +96,17 @@ def test_substeps_cover_a_heavy_viscous_damping():
 def test_a_synthetic_record_past_the_substep_cap_is_made_at_the_cap_with_a_warning(caplog):
     """A model needing more than MAX_SUBSTEPS substeps is simulated at the cap (here still
     stable) and says so once through the package's logging, naming the synthetic record."""
-    from heli_uq.simulation import solver
+    from heli_uq.simulation import stiffness
     from heli_uq.simulation.synthetic import synthetic_experiment
 
     params = dict(OVERDAMPED, D_theta=6 * OVERDAMPED["D_theta"])
     model = build_model()
-    assert default_substeps(model, params, 0.01, margin=2.0) > solver.MAX_SUBSTEPS
+    assert default_substeps(model, params, 0.01, margin=2.0) > stiffness.MAX_SUBSTEPS
     with caplog.at_level("WARNING", logger="heli_uq"):
         exp = synthetic_experiment(params, x0=[-0.55, 1.0, 0.0, 0.0], duration=2.0, seed=0, model=model)
-    lines = [r.getMessage() for r in caplog.records if r.name == "heli_uq.simulation.solver"]
+    lines = [r.getMessage() for r in caplog.records if r.name == "heli_uq.simulation.stiffness"]
     assert len(lines) == 1 and lines[0].startswith("a synthetic record needs"), lines
-    assert f"using {solver.MAX_SUBSTEPS}" in lines[0] and np.all(np.isfinite(exp.y))
+    assert f"using {stiffness.MAX_SUBSTEPS}" in lines[0] and np.all(np.isfinite(exp.y))
 
 
 def _loss_fn(u, y_data, dt):

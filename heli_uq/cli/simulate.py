@@ -128,7 +128,8 @@ def simulate_to_files(out: Path, params: dict, x0, u, dt: float, *, model=None, 
     from heli_uq.output.plots import plot_simulation, save_figure
     from heli_uq.probability.likelihood import loss_v
     from heli_uq.simulation.physical import physical_range
-    from heli_uq.simulation.solver import MAX_SUBSTEPS, RESULTS, capped_substeps, default_substeps, solve
+    from heli_uq.simulation.solver import RESULTS, solve
+    from heli_uq.simulation.stiffness import MAX_SUBSTEPS, capped_substeps, default_substeps
 
     model = HeliModel() if model is None else model
     params = {k: float(v) for k, v in model.complete(params).items()}

@@ -24,7 +24,8 @@ from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.spec import build_model
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.simulation.physical import PITCH_LIMIT
-from heli_uq.simulation.solver import default_substeps, solve
+from heli_uq.simulation.solver import solve
+from heli_uq.simulation.stiffness import default_substeps
 
 __all__ = ["Rival", "Rivals"]
 

@@ -31,7 +31,7 @@ from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.tables import RIG_FIT, RIG_FIT_X0
 from heli_uq.probability.priors import OUTPUTS, PriorSet, fixed_values
 from heli_uq.simulation.physical import PITCH_LIMIT
-from heli_uq.simulation.solver import default_substeps
+from heli_uq.simulation.stiffness import default_substeps
 
 __all__ = ["DesignPrior", "InformationGain", "DEFAULT_NOISE", "DESIGN_X0", "PRIOR_SAMPLES", "check_noise"]
 

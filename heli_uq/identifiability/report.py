@@ -278,7 +278,7 @@ def identifiability_report(record: Experiment, out_dir, *, model: HeliModel | No
         RK4 substeps per sample (default: from the model's stiffness at ``base``).
     """
     from heli_uq.identifiability import figures as figs
-    from heli_uq.simulation.solver import default_substeps
+    from heli_uq.simulation.stiffness import default_substeps
 
     t_start = time.perf_counter()
     log = progress_log(log, __name__)

@@ -42,8 +42,13 @@ from heli_uq.inference.map import NEWTON_STEPS, find_map, laplace, leave_saddles
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.probability.problem import Problem
-from heli_uq.simulation.solver import MAX_SUBSTEPS, capped_substeps, default_substeps
-from heli_uq.simulation.stiffness import stiffness_rates, substeps_covering
+from heli_uq.simulation.stiffness import (
+    MAX_SUBSTEPS,
+    capped_substeps,
+    default_substeps,
+    stiffness_rates,
+    substeps_covering,
+)
 
 __all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "startable", "initial_draws",
            "whitening", "TAIL_DRAWS", "MAX_SUBSTEPS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",

@@ -11,7 +11,7 @@ the record is set against the draws:
 
 * ``failed``: share of draws whose solve fails (the posterior gives them no mass);
 * ``substeps``, ``stiffness``: the solver's substeps, raised to cover the stiffest draw
-  up to :data:`~heli_uq.simulation.solver.MAX_SUBSTEPS`, and the draws still past RK4's
+  up to :data:`~heli_uq.simulation.stiffness.MAX_SUBSTEPS`, and the draws still past RK4's
   stability limit (:func:`~heli_uq.simulation.stiffness.stiffness_check`; noted);
 * ``unphysical``: share whose pitch leaves +-90 deg or whose states blow up, failed
   draws included (:func:`heli_uq.simulation.physical.unphysical_draws`);
@@ -49,8 +49,7 @@ from heli_uq.output.plots import plot_bands, save_figure
 from heli_uq.probability.priors import OUTPUTS, PriorSet
 from heli_uq.probability.problem import make_problem
 from heli_uq.simulation.physical import unphysical_draws
-from heli_uq.simulation.solver import MAX_SUBSTEPS
-from heli_uq.simulation.stiffness import stiffness_check, substeps_covering
+from heli_uq.simulation.stiffness import MAX_SUBSTEPS, stiffness_check, substeps_covering
 
 __all__ = ["prior_draws", "prior_predictive_check", "NOTE_RULES"]
 
@@ -90,7 +89,7 @@ def prior_draws(problem, n: int, seed: int = 0) -> dict:
 
 def _covering_substeps(problem, samples: dict):
     """``(problem, stiffness)``: the problem with the substeps that cover the stiffest
-    draw (at most :data:`~heli_uq.simulation.solver.MAX_SUBSTEPS`), and
+    draw (at most :data:`~heli_uq.simulation.stiffness.MAX_SUBSTEPS`), and
     :func:`~heli_uq.simulation.stiffness.stiffness_check` of the draws at them (None
     without stiff terms)."""
     n = samples["sigma"].shape[1]

@@ -18,7 +18,8 @@ from heli_uq.model.tables import X0_NAMES
 from heli_uq.probability.coordinates import Coordinates
 from heli_uq.probability.noise import ERROR_MODELS
 from heli_uq.probability.priors import PriorSet, RecordStart
-from heli_uq.simulation.solver import default_substeps, solve
+from heli_uq.simulation.solver import solve
+from heli_uq.simulation.stiffness import default_substeps
 
 __all__ = ["Problem", "check_split", "make_problem", "fingerprint"]
 

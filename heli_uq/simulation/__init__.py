@@ -10,9 +10,9 @@ from heli_uq.simulation.reference import reference_solve as reference_solve
 from heli_uq.simulation.solver import MAX_ABS_STATE as MAX_ABS_STATE
 from heli_uq.simulation.solver import RESULTS as RESULTS
 from heli_uq.simulation.solver import Solution as Solution
-from heli_uq.simulation.solver import default_substeps as default_substeps
 from heli_uq.simulation.solver import simulate as simulate
 from heli_uq.simulation.solver import solve as solve
+from heli_uq.simulation.stiffness import default_substeps as default_substeps
 from heli_uq.simulation.synthetic import SYNTHETIC_PARAMS as SYNTHETIC_PARAMS
 from heli_uq.simulation.synthetic import SYNTHETIC_X0 as SYNTHETIC_X0
 from heli_uq.simulation.synthetic import synthetic_experiment as synthetic_experiment

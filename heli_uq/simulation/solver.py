@@ -5,7 +5,7 @@ solver takes ``substeps`` classical Runge-Kutta steps inside every interval, so 
 step never straddles a switch of the input: each switch is treated exactly, with no
 smoothing and no adaptive step.  For the paper's model one RK4 step per interval of the
 rig record (dt = 0.01 s) is accurate to well below 1e-6 rad; stiff effects (sharp
-friction) need more substeps, see :func:`default_substeps` and
+friction) need more substeps, see :func:`heli_uq.simulation.stiffness.default_substeps` and
 :func:`heli_uq.simulation.reference_solve`.  Substeps are taken as rows of their own
 (each sample's voltages repeated ``substeps`` times, the states kept at the samples), so
 the loop body is one small RK4 step whatever their number: a body of several unrolled
@@ -25,8 +25,6 @@ reverse-mode autodiff to ~1e-13).
 from __future__ import annotations
 
 import enum
-import logging
-import math
 from collections.abc import Mapping
 
 import equinox as eqx
@@ -40,8 +38,7 @@ from jax.flatten_util import ravel_pytree
 from heli_uq.errors import ParameterError
 from heli_uq.model.heli_model import HeliModel
 
-__all__ = ["simulate", "solve", "Solution", "RESULTS", "MAX_ABS_STATE", "MAX_SAMPLES",
-           "default_substeps", "capped_substeps", "STABLE_STEP", "MAX_SUBSTEPS"]  # fmt: skip
+__all__ = ["simulate", "solve", "Solution", "RESULTS", "MAX_ABS_STATE", "MAX_SAMPLES"]
 
 #: A state component beyond this magnitude (rad or rad/s) counts as a blow-up.
 MAX_ABS_STATE = 1.0e4
@@ -52,16 +49,6 @@ MAX_SAMPLES = 10_000_000
 #: caches: on the rig record at 5 substeps (65,500 steps) the gradient took 26 ms in
 #: chunks of 16,384 against 41 ms all at once; at 1 substep (one chunk) 4.7 ms either way.
 ADJOINT_CHUNK = 16_384
-
-#: Most substeps a solve is given (:func:`heli_uq.inference.prepare_start`, ``simulate``,
-#: synthetic records).  A model that needs more (friction far sharper than the rig's, or
-#: absurd inertias) is left at this number, with a warning or a failed solve: such a stiff
-#: mode is better smoothed (a larger ``omega_s``) than resolved.
-MAX_SUBSTEPS = 16
-#: ``rate * h`` at which :func:`default_substeps` places an RK4 step: half the stability
-#: limit 2.785 of RK4 on a decaying mode, which keeps its settling error small.
-STABLE_STEP = 1.4
-
 
 class RESULTS(enum.IntEnum):
     """Outcome codes of :func:`solve` (``Solution.result``)."""
@@ -326,7 +313,7 @@ def solve(
     model : HeliModel, optional
         Default: the paper's model (closed-form mechanics, ``F = K u - D v``).
     substeps : int
-        RK4 steps per sample interval (default 1; see :func:`default_substeps`).
+        RK4 steps per sample interval (default 1; see :func:`~heli_uq.simulation.stiffness.default_substeps`).
     gradients : {"adjoint", "autodiff"}
         ``"adjoint"`` (default): reverse mode (``jax.grad``, ``jax.vjp``, ``jax.jacrev``)
         through the fast discrete adjoint.  ``"autodiff"``: plain JAX differentiation of
@@ -381,28 +368,3 @@ def simulate(params: Mapping | None, x0, u, dt, *, model: HeliModel | None = Non
     (100, 4)
     """
     return solve(params, x0, u, dt, model=model, substeps=substeps, gradients=gradients).ys
-
-
-def capped_substeps(need: int, what: str) -> int:
-    """``min(need, MAX_SUBSTEPS)``, with a warning naming ``what`` (e.g. ``"the MAP"``) when
-    the cap is reached."""
-    if need > MAX_SUBSTEPS:
-        logging.getLogger(__name__).warning(
-            f"{what} needs {need} solver substeps per sample for its stiffest mode; using "
-            f"{MAX_SUBSTEPS} (MAX_SUBSTEPS): the simulation may be inaccurate or diverge; for a "
-            "sharp friction consider a smoother one (a larger omega_s)")
-    return min(need, MAX_SUBSTEPS)
-
-
-def default_substeps(model: HeliModel, params: Mapping, dt: float, *, margin: float = 1.0,
-                     thetas=None) -> int:  # fmt: skip
-    """RK4 substeps per sample for ``model`` at ``params``: ``ceil(margin rate dt / 1.4)``.
-
-    ``rate`` is the model's largest stiffness rate near rest (:meth:`HeliModel.stiffness`,
-    e.g. ``F_c / (omega_s M22)`` for smoothed friction, with ``M22`` the smallest yaw
-    inertia over the pitch angles ``thetas`` [rad], default all), the viscous damping's
-    ``D / M`` included (one point), and 1.4 (:data:`STABLE_STEP`) is half RK4's stability
-    limit on a decaying mode.  1 at the rig's parameters without stiff terms.
-    """
-    rate = model.stiffness(model.complete(params), thetas, decay=True)
-    return max(1, math.ceil(margin * rate * float(dt) / STABLE_STEP))

@@ -2,31 +2,67 @@
 
 The fixed-step RK4 solver (:mod:`heli_uq.simulation.solver`) is stable on a decaying mode of
 rate ``r`` [1/s] while ``r h < RK4_STABILITY`` (``h`` the step), and accurate while ``r h``
-stays below :data:`~heli_uq.simulation.solver.STABLE_STEP` (on the rig record, yaw friction
+stays below :data:`STABLE_STEP` (on the rig record, yaw friction
 at ``r h`` = 1.05: 2.5e-5 rad from the adaptive reference; pitch friction at 1.19: 1.3e-7).
 A friction term's rate at rest (``F_c / (omega_s M)``) varies over a posterior, so the
 substeps must cover the draws, not only the MAP: a draw beyond the limit is simulated
 wrongly (on the rig record, pitch friction at ``r h`` = 4.2 is 13 mrad from the adaptive
 reference, four times the pitch noise) and nothing in the solve fails.
-:func:`substeps_covering` chooses the substeps for a set of draws (a Laplace
+:func:`default_substeps` chooses one point's substeps (its damping included), capped at
+:data:`MAX_SUBSTEPS` by :func:`capped_substeps`; :func:`substeps_covering` chooses them for a set of draws (a Laplace
 approximation's, before sampling); :func:`stiffness_check` counts the draws of a finished
 run beyond the limit.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Mapping
 
 import numpy as np
 
 from heli_uq.model.heli_model import HeliModel
-from heli_uq.simulation.solver import STABLE_STEP
 
-__all__ = ["RK4_STABILITY", "stiffness_rates", "substeps_covering", "stiffness_check"]
+__all__ = ["RK4_STABILITY", "STABLE_STEP", "MAX_SUBSTEPS", "default_substeps", "capped_substeps",
+           "stiffness_rates", "substeps_covering", "stiffness_check"]  # fmt: skip
 
 #: RK4's stability limit on a decaying real mode: ``|r h|`` below 2.785.
 RK4_STABILITY = 2.785
+
+#: Most substeps a solve is given (:func:`heli_uq.inference.prepare_start`, ``simulate``,
+#: synthetic records).  A model that needs more (friction far sharper than the rig's, or
+#: absurd inertias) is left at this number, with a warning or a failed solve: such a stiff
+#: mode is better smoothed (a larger ``omega_s``) than resolved.
+MAX_SUBSTEPS = 16
+#: ``rate * h`` at which :func:`default_substeps` places an RK4 step: half the stability
+#: limit 2.785 of RK4 on a decaying mode, which keeps its settling error small.
+STABLE_STEP = 1.4
+
+
+def capped_substeps(need: int, what: str) -> int:
+    """``min(need, MAX_SUBSTEPS)``, with a warning naming ``what`` (e.g. ``"the MAP"``) when
+    the cap is reached."""
+    if need > MAX_SUBSTEPS:
+        logging.getLogger(__name__).warning(
+            f"{what} needs {need} solver substeps per sample for its stiffest mode; using "
+            f"{MAX_SUBSTEPS} (MAX_SUBSTEPS): the simulation may be inaccurate or diverge; for a "
+            "sharp friction consider a smoother one (a larger omega_s)")
+    return min(need, MAX_SUBSTEPS)
+
+
+def default_substeps(model: HeliModel, params: Mapping, dt: float, *, margin: float = 1.0,
+                     thetas=None) -> int:  # fmt: skip
+    """RK4 substeps per sample for ``model`` at ``params``: ``ceil(margin rate dt / 1.4)``.
+
+    ``rate`` is the model's largest stiffness rate near rest (:meth:`HeliModel.stiffness`,
+    e.g. ``F_c / (omega_s M22)`` for smoothed friction, with ``M22`` the smallest yaw
+    inertia over the pitch angles ``thetas`` [rad], default all), the viscous damping's
+    ``D / M`` included (one point), and 1.4 (:data:`STABLE_STEP`) is half RK4's stability
+    limit on a decaying mode.  1 at the rig's parameters without stiff terms.
+    """
+    rate = model.stiffness(model.complete(params), thetas, decay=True)
+    return max(1, math.ceil(margin * rate * float(dt) / STABLE_STEP))
 
 
 def stiffness_rates(model: HeliModel, draws: Mapping, *, fixed: Mapping | None = None,

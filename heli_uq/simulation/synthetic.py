@@ -151,7 +151,8 @@ def synthetic_experiment(
 
 def _model_simulator(model, params, dt, substeps):
     from heli_uq.model.heli_model import HeliModel
-    from heli_uq.simulation.solver import capped_substeps, default_substeps, simulate
+    from heli_uq.simulation.solver import simulate
+    from heli_uq.simulation.stiffness import capped_substeps, default_substeps
 
     model = HeliModel() if model is None else model
     if substeps is None:

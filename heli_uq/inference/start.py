@@ -43,7 +43,6 @@ from heli_uq.model.tables import X0_NAMES
 from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.probability.problem import Problem
 from heli_uq.simulation.stiffness import (
-    MAX_SUBSTEPS,
     capped_substeps,
     default_substeps,
     stiffness_rates,
@@ -51,7 +50,7 @@ from heli_uq.simulation.stiffness import (
 )
 
 __all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "startable", "initial_draws",
-           "whitening", "TAIL_DRAWS", "MAX_SUBSTEPS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
+           "whitening", "TAIL_DRAWS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
            "NETWORK_MAP_DECREMENT_MAX", "PoorBasin"]  # fmt: skip
 
 #: Laplace draws (seeded) whose stiffness the substeps must cover (their maximum is about

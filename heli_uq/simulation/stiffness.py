@@ -9,9 +9,9 @@ substeps must cover the draws, not only the MAP: a draw beyond the limit is simu
 wrongly (on the rig record, pitch friction at ``r h`` = 4.2 is 13 mrad from the adaptive
 reference, four times the pitch noise) and nothing in the solve fails.
 :func:`default_substeps` chooses one point's substeps (its damping included), capped at
-:data:`MAX_SUBSTEPS` by :func:`capped_substeps`; :func:`substeps_covering` chooses them for a set of draws (a Laplace
-approximation's, before sampling); :func:`stiffness_check` counts the draws of a finished
-run beyond the limit.
+:data:`MAX_SUBSTEPS` by :func:`capped_substeps`; :func:`substeps_covering` chooses them for
+a set of draws (a Laplace approximation's, before sampling); :func:`stiffness_check` counts
+the draws of a finished run beyond the limit.
 """
 
 from __future__ import annotations

@@ -26,7 +26,7 @@ from heli_uq.model import (
 from heli_uq.model.terms.rigid_body import pitch_inertia, yaw_inertia
 from heli_uq.simulation import default_substeps, reference_solve, simulate, solve
 from heli_uq.simulation.reference import solver_error
-from heli_uq.simulation.stiffness import stiffness_check, stiffness_rates, substeps_covering
+from heli_uq.simulation.stiffness import STABLE_STEP, stiffness_check, stiffness_rates, substeps_covering
 
 #: One value per effect parameter: large enough to matter on a record, physically plausible.
 EFFECT_VALUES = {
@@ -318,6 +318,63 @@ def test_stiffness_check_flags_the_draws_the_solver_gets_wrong():
         error = solver_error(p, x0, u, dt, model=model, substeps=substeps, reference=ref)
         assert (error > SOLVER_TOL) == (rate > check["rate_limit"]), (rate, error)
         assert solver_error(p, x0, u, dt, model=model, substeps=covering, reference=ref) <= SOLVER_TOL
+
+
+def test_viscous_damping_within_the_stable_step_is_accurate_and_past_the_limit_blows_up():
+    """Why a run's draws are checked for the damping only past :data:`STABLE_STEP`: a linear
+    decaying mode (``D / M`` times the step up to 1.4, on either axis) is simulated within
+    the solver tolerance at one substep, and past RK4's limit 2.785 the solve fails, which
+    the sampler rejects (between the two the yaw errs up to ~1e-4 rad: the next test)."""
+    model = HeliModel()
+    values = model.complete({})
+    u = _rig_like_inputs(20.0, seed=5)
+    x0 = [-0.5, 0.3, 0.0, 0.0]
+    dt = 0.01
+    # the yaw inertia varies with the pitch: its extremes over the pitch angles visited
+    thetas = np.asarray(solve(values, x0, u, dt, model=model).ys)[:, 0]
+    yaw = np.array([float(yaw_inertia(values, th)) for th in thetas])
+    pitch = float(pitch_inertia(values))
+    for name, smallest, largest in (("D_theta", pitch, pitch), ("D_psi", yaw.min(), yaw.max())):
+        p = dict(values, **{name: STABLE_STEP / dt * smallest})  # r h at most 1.4 all along
+        assert solver_error(p, x0, u, dt, model=model, substeps=1) <= SOLVER_TOL, name
+        beyond = dict(values, **{name: 3.0 / dt * largest})  # past 2.785 all along
+        assert not bool(solve(beyond, x0, u, dt, model=model, substeps=1).ok), name
+
+
+def test_a_posterior_damped_past_the_stable_step_is_compared_with_the_reference(synthetic_problem):
+    """The posterior's solver check (:func:`heli_uq.output.posterior_study._solver_check`)
+    skips a model without stiff terms whose damping every draw resolves, and compares the
+    most damped draw with the adaptive reference once one is past :data:`STABLE_STEP`."""
+    import arviz as az
+
+    from heli_uq.model import X0_NAMES
+    from heli_uq.output.posterior_study import _solver_check
+
+    problem = synthetic_problem
+    values = problem.model.complete({})
+    free = [n for n, prior in problem.priors.params.items() if prior.free]
+    x0 = [-0.5, 0.3, 0.0, 0.0]
+    yaw_least = float(np.min(yaw_inertia(values, problem.y[: problem.n_train, 0])))
+    heavy = 2.5 / problem.dt * problem.substeps * yaw_least  # r h 2.5 at the smallest inertia
+
+    def posterior(d_psi_of_draw):
+        shape = (2, 3)
+        post = {n: np.full(shape, float(values[n])) for n in free}
+        post.update({n: np.full(shape, v) for n, v in zip(X0_NAMES, x0)})
+        post["D_psi"] = np.reshape(d_psi_of_draw, shape)
+        lp = -np.arange(6.0).reshape(shape)  # the draw of highest density: chain 0, draw 0
+        return az.from_dict(posterior=post, sample_stats={"lp": lp})
+
+    rig = np.full(6, float(values["D_psi"]))
+    assert _solver_check(problem, posterior(rig)) == (None, None)
+    damped = rig.copy()
+    damped[4] = heavy  # chain 1, draw 1
+    error, stiffness = _solver_check(problem, posterior(damped))
+    assert stiffness is None
+    p = {n: float(prior.a) for n, prior in problem.priors.params.items()}
+    p.update({n: float(values[n]) for n in free}, D_psi=heavy)
+    expected = solver_error(p, x0, problem.u, problem.dt, model=problem.model, substeps=problem.substeps)
+    assert error == pytest.approx(expected, rel=1e-9) and error > 0.0
 
 
 # ------------------------------------------------------------------ identifiability

@@ -169,7 +169,9 @@ class AbstractTerm(eqx.Module):
         """Rate [1/s] of a linear decaying mode this term adds at rest, which one point's
         solve must resolve and a posterior's spread need not (0 by default): past RK4's
         limit a linear mode blows up, so a draw there fails visibly, where a friction
-        draw (:meth:`stiffness`) would drift silently.  Arguments as for :meth:`stiffness`."""
+        draw (:meth:`stiffness`) would drift silently; inside it the posterior's solver
+        check compares the most damped draw with the adaptive reference.  Arguments as for
+        :meth:`stiffness`."""
         return 0.0
 
 

@@ -149,6 +149,21 @@ def check_scheduler(scheduler: str | None) -> None:
     _connect(scheduler).close()
 
 
+def _local_cluster(cluster_class, workers: int):
+    """A ``LocalCluster`` of ``workers`` spawned processes, or a
+    :class:`~heli_uq.errors.ParameterError` saying why its workers did not start."""
+    from heli_uq.errors import ParameterError
+
+    try:
+        return cluster_class(n_workers=workers, threads_per_worker=1, processes=True,
+                             dashboard_address=":0")  # fmt: skip
+    except RuntimeError as exc:  # e.g. "Nanny failed to start."
+        raise ParameterError(
+            f"scheduler 'local': the Dask worker processes did not start ({exc}); each worker is "
+            "a new Python process that imports the calling script, so a script must make this "
+            "call under `if __name__ == \"__main__\":`, or pass scheduler=\"serial\"") from None
+
+
 def run_tasks(fn: Callable, tasks: Mapping, *, scheduler: str | None = "local", workers: int | None = None,
               on_result: Callable | None = None) -> dict:  # fmt: skip
     """``{key: fn(arg)}`` for ``tasks = {key: arg}``, each task independent.
@@ -176,7 +191,9 @@ def run_tasks(fn: Callable, tasks: Mapping, *, scheduler: str | None = "local", 
     Raises
     ------
     heli_uq.errors.ParameterError
-        ``scheduler`` is an address where no scheduler answers within :data:`CONNECT_TIMEOUT`.
+        ``scheduler`` is an address where no scheduler answers within :data:`CONNECT_TIMEOUT`,
+        or the local cluster's workers do not start (a script that calls this outside
+        ``if __name__ == "__main__":``).
     """
     keys = list(tasks)
     results = {}
@@ -200,8 +217,7 @@ def run_tasks(fn: Callable, tasks: Mapping, *, scheduler: str | None = "local", 
     with dask.config.set({"distributed.worker.multiprocessing-method": "spawn",
                           "distributed.worker.daemon": False}):  # fmt: skip
         if scheduler in (None, "local"):
-            cluster = LocalCluster(n_workers=workers or default_workers(len(keys)), threads_per_worker=1,
-                                   processes=True, dashboard_address=":0")  # fmt: skip
+            cluster = _local_cluster(LocalCluster, workers or default_workers(len(keys)))
             client = Client(cluster)
             client.run(_quiet_closing_race)
         else:

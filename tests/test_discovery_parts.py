@@ -386,6 +386,35 @@ def test_run_tasks_reports_each_failure_and_finishes_the_rest(scheduler):
     assert sorted(seen) == ["a", "b", "c"]
 
 
+UNGUARDED_SCRIPT = """
+from heli_uq.executor import run_tasks
+
+
+def double(x):
+    return 2 * x
+
+
+print(run_tasks(double, {"a": 1}, scheduler="local", workers=1))
+"""
+
+
+def test_a_script_without_a_main_guard_gets_a_clear_error_from_the_local_cluster(tmp_path):
+    """Each spawned worker imports the calling script, so an unguarded call starts the
+    cluster again inside the worker, which Python refuses: the caller is told the cause and
+    the fix in one line, not left with Dask's "Nanny failed to start"."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "unguarded.py"
+    script.write_text(UNGUARDED_SCRIPT)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=120, cwd=tmp_path)  # fmt: skip
+    assert done.returncode != 0
+    last = done.stderr.strip().splitlines()[-1]
+    assert last.startswith("heli_uq.errors.ParameterError: scheduler 'local'"), last
+    assert 'if __name__ == "__main__":' in last and 'scheduler="serial"' in last, last
+
+
 def _closing_race_filtered(_):
     import logging
 

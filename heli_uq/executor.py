@@ -159,9 +159,9 @@ def _local_cluster(cluster_class, workers: int):
                              dashboard_address=":0")  # fmt: skip
     except RuntimeError as exc:  # e.g. "Nanny failed to start."
         raise ParameterError(
-            f"scheduler 'local': the Dask worker processes did not start ({exc}); each worker is "
-            "a new Python process that imports the calling script, so a script must make this "
-            "call under `if __name__ == \"__main__\":`, or pass scheduler=\"serial\"") from None
+            f"scheduler 'local': the Dask worker processes did not start ({exc}); a script that "
+            "makes this call must do so under `if __name__ == \"__main__\":` (each worker is a "
+            "new Python process that imports the script), else pass scheduler=\"serial\"") from None
 
 
 def run_tasks(fn: Callable, tasks: Mapping, *, scheduler: str | None = "local", workers: int | None = None,

@@ -13,10 +13,16 @@
   setting when it is imported, so it is set here only where JAX is not imported yet
   (a user's own value is kept); otherwise records are embedded as before, which changes
   compile times, not results.
+* The warning JAX gives when a persistent cache entry cannot be read is silenced
+  (:data:`CACHE_READ_WARNING`): without a cache size limit JAX writes an entry in place, so
+  a process that reads it while another writes it finds it empty or cut short; JAX then
+  compiles the program again, which is the right result, and the warning says nothing a
+  user can act on (seen in CI, where the two test workers compile the same programs).
 """
 
 import os
 import sys
+import warnings
 
 #: The environment that makes records arguments of the compiled programs (JAX's own
 #: defaults, ``"false"`` and ``"32"``, embed them).
@@ -29,3 +35,7 @@ if "jax" not in sys.modules:
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+
+#: The start of JAX's warning for a persistent cache entry it cannot read (it compiles again).
+CACHE_READ_WARNING = "Error reading persistent compilation cache entry"
+warnings.filterwarnings("ignore", message=CACHE_READ_WARNING, category=UserWarning)

@@ -22,7 +22,12 @@ FNN(u) bands and network torque to ``figures/``.  A network's posterior over eve
 (``--nn-posterior full``) is labelled ``, every weight`` and kept in its own run directory
 and figure, beside the last-layer ones.
 
-Usage: ``python studies/hybrid_posterior.py [--train 0:91 --test 91:131] [--rows ...]``.
+``--fix NAME=VALUE``, ``--prior`` and ``--priors`` change every row's priors as in ``heli-uq
+sample`` (a row so run is labelled with them and kept in its own run directory);
+``--time-limit MINUTES`` stops each row's NUTS with the draws made (flagged).
+
+Usage: ``python studies/hybrid_posterior.py [--train 0:91 --test 91:131] [--rows ...]
+[--hidden 1 --fix psi0=0.8173 --fix omega_psi0=0 --time-limit 45]``.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from __future__ import annotations
 import argparse
 import json
 import pathlib
+import re
 import sys
 import time
 
@@ -37,6 +43,8 @@ import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from _study import RESULTS, add_run_arguments, append_jsonl, provenance  # noqa: E402
+
+from heli_uq.cli.options import add_prior_options, priors_from_args  # noqa: E402
 
 ROWS = ("mechanistic", "effect", "u", "u,x,v", "equation")
 #: Hidden units of the stored network rows; another size is labelled with it.
@@ -103,8 +111,13 @@ def main(argv=None):
     ap.add_argument("--nn-posterior", choices=["full", "last-layer"], default="full",
                     help="the networks' posterior: every weight (default), or the output weights "
                          "with the hidden layer trained and fixed")
+    ap.add_argument("--time-limit", type=float, default=None, metavar="MINUTES",
+                    help="stop each row's NUTS at this wall time with the draws made (flagged)")
+    add_prior_options(ap)
     add_run_arguments(ap, "hybrid_posterior", chains=4, warmup=500, draws=500)
     args = ap.parse_args(argv)
+    if args.time_limit is not None and not args.time_limit > 0:
+        ap.error(f"--time-limit: expected minutes > 0, found {args.time_limit:g}")
 
     import numpyro
 
@@ -112,6 +125,7 @@ def main(argv=None):
     from heli_uq.data import load_data
     from heli_uq.discovery.network_equation import equation_model, recover_equation
     from heli_uq.discovery.score import input_blocks
+    from heli_uq.errors import ParameterError
     from heli_uq.model.spec import build_model, parse_effects
     from heli_uq.output import sample_posterior
     from heli_uq.output.network import network_pairs
@@ -132,9 +146,20 @@ def main(argv=None):
               "u": ("+ FNN(u)" + sized + ("" if args.project == "u" else f" (project {args.project})"),
                     build_model([{**nn, "inputs": "u", "project": args.project}])),
               "u,x,v": ("+ FNN(u,x,v)" + sized, build_model([{**nn, "inputs": "u,x,v"}]))}  # fmt: skip
+    try:  # a bad --fix / --prior stops before any row is sampled
+        for row in args.rows:
+            if models.get(row) is not None:
+                priors_from_args(args, models[row][1])
+    except ParameterError as err:
+        ap.error(str(err))
     runs = pathlib.Path(args.runs)
+    time_limit = None if args.time_limit is None else 60.0 * args.time_limit  # [s]
     accept = {} if args.target_accept is None else {"target_accept": args.target_accept}
     base_scores, fnn_u = None, None
+    # a row run under changed priors is labelled with them and kept in its own run directory
+    changed = [*(["priors " + args.priors] if args.priors else []), *(args.prior or []), *(args.fix or [])]
+    changed_label = f" ({'; '.join(changed)})" if changed else ""
+    changed_dir = "_" + "_".join(re.sub(r"[^A-Za-z0-9.]+", "-", c) for c in changed) if changed else ""
     lines = []
     for row in args.rows:
         t0 = time.perf_counter()
@@ -158,15 +183,17 @@ def main(argv=None):
             label, model = models[row]
         # every weight sampled: its own label, run and figure (the stored rows are last-layer ones)
         every = "_every_weight" if args.nn_posterior == "full" and row in ("u", "u,x,v") else ""
-        label += ", every weight" if every else ""
+        label += (", every weight" if every else "") + changed_label
         print(f"{label}: {args.sampler} ({args.chains} x ({args.warmup} + {args.draws}))", flush=True)
         projected = "" if row != "u" or args.project == "u" else f"_{args.project}"
         size = f"_h{args.hidden}" if other_size and row in ("u", "u,x,v") else ""
         source_run = f"_h{args.hidden}_{args.nn_posterior}" if row == "equation" else ""
-        run_dir = runs / (row.replace(",", "") + projected + size + every + source_run)
+        run_dir = runs / (row.replace(",", "") + projected + size + every + source_run + changed_dir)
         idata, summary = sample_posterior(record, run_dir, model=model, train=train,
                                           test=test, error="iid", sampler=args.sampler,
                                           network_posterior=args.nn_posterior, **accept,
+                                          priors=priors_from_args(args, model),
+                                          time_limit=time_limit,
                                           chains=args.chains, warmup=args.warmup,
                                           draws=args.draws, progress=False)  # fmt: skip
         metrics, scores = _row_metrics(idata, summary, base_scores, blocks_test, test_slice)
@@ -225,8 +252,9 @@ def _write_table(lines, path: pathlib.Path) -> None:
     rows = [head]
     for ln in lines:
         tr, te = ln["windows"]["train"], ln["windows"].get("test", {})
+        base = ln["row"].split(" (")[0] == "mechanistic"  # also under changed priors
         diff = (f"{ln['test_score_diff']:+.0f} ({ln['test_score_se']:.0f})" if "test_score_diff" in ln
-                else "0" if ln["row"] == "mechanistic" else "– (no mechanistic row in its run)")  # fmt: skip
+                else "0" if base else "– (no mechanistic row in its run)")  # fmt: skip
         rhat = f"{ln.get('rhat_max', float('nan')):.3f}"
         if "rhat_max_network_torque" in ln:
             rhat += f" (weights {ln['rhat_max_network_weights']:.2f})"

@@ -24,7 +24,7 @@ LP_RTOL = 1e-9
 MAIN = dict(ensembles=2, steps=400, chunk=200, seed=0)
 #: Small runs for reproducibility and resume (3 chunks per ensemble).
 SMALL = dict(ensembles=2, steps=120, chunk=40, burn=40, thin=2, seed=5)
-UNCONSTRAINED_SITES = ("omega_psi0", "omega_theta0", "psi0", "scale_noise", "sigma_psi",
+UNCONSTRAINED_SITES = ("omega_theta0", "p_psi0_ratio", "psi0", "scale_noise", "sigma_psi",
                        "sigma_theta", "theta0", "z")  # fmt: skip
 
 

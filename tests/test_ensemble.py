@@ -77,7 +77,7 @@ def test_shapes_sites_and_info(main_run, problem, start):
     walkers = 2 * start.density.dim + 2
     burn = MAIN["steps"] // 2
     draws = (MAIN["steps"] - burn) * walkers
-    expected = set(UNCONSTRAINED_SITES) | set(problem.coords.free) | {"log_J_pitch", "sigma"}
+    expected = set(UNCONSTRAINED_SITES) | set(problem.coords.free) | {"log_J_pitch", "sigma", "omega_psi0"}
     assert set(main_run.samples) == expected
     for k, v in main_run.samples.items():
         assert v.shape[:2] == (MAIN["ensembles"], draws), k

@@ -383,3 +383,39 @@ def test_a_warm_start_with_an_effect_at_its_no_effect_default_is_used(tmp_path):
     map_starts(problem, log_density_setup(problem), 1, guesses=(completed,),
                log=lambda line: costs.append(float(line.split("cost ")[1].split()[0])))  # fmt: skip
     assert len(costs) == 1 and math.isfinite(costs[0]), costs
+
+
+#: Damping [N m s / rad] far past the stability limit of RK4 at one substep per 0.01 s sample.
+DIVERGING_DAMPING = 1e6
+
+
+def test_no_start_that_simulates_is_the_documented_error_and_a_nested_candidate_falls_back():
+    """Every start's least-squares fit leaving a model that diverges gave ``ValueError:
+    min() arg is an empty sequence`` from inside ``find_map`` (2026-12-05, the base model's
+    whole-record refit in ``discover``).  It is now ``prepare_start``'s documented
+    ParameterError, so a nested candidate with such a start falls back to its
+    "effect off" start, as it does for any other failed start."""
+    import dataclasses
+
+    from heli_uq.discovery.candidates import FitTask, _nested_map, off_start
+    from heli_uq.errors import ParameterError
+    from heli_uq.inference.start import prepare_start
+    from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model
+    from heli_uq.probability import make_problem
+    from heli_uq.simulation import synthetic_experiment
+
+    rec = synthetic_experiment(RIG_FIT, RIG_FIT_X0, duration=1.0, inputs="rig_steps", seed=5,
+                               noise_std=(0.003, 0.008))  # fmt: skip
+    diverging = {**RIG_FIT, "D_theta": DIVERGING_DAMPING, "D_psi": DIVERGING_DAMPING}
+    problem = make_problem(rec, error="iid", substeps=1)
+    with pytest.raises(ParameterError, match="no MAP start simulates the record"):
+        prepare_start(problem, n_starts=1, guesses=[diverging])
+    effects = ["yaw:torque_offset"]
+    nested = make_problem(rec, model=build_model(effects), error="iid", substeps=1)
+    task = FitTask(rec, (0.0, 1.0), None, tuple(effects), ({**diverging, "T_0_yaw": 0.0},), 0, 1, 8)
+    with pytest.raises(ParameterError, match="no MAP start simulates the record"):
+        _nested_map(nested, task)
+    base = prepare_start(problem, n_starts=1, guesses=[RIG_FIT])
+    guarded = dataclasses.replace(task, off=off_start(RIG_FIT, effects), floor=base.map_value)
+    start, from_off = _nested_map(nested, guarded)
+    assert from_off and np.isfinite(start.map_value)

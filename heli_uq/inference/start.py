@@ -310,7 +310,8 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
     Raises
     ------
     ParameterError
-        If no start gives a finite log density.
+        If no start gives a finite log density, or no start simulates the record after its
+        least-squares fit.
     PoorBasin
         If the MAP ends above ``abandon_above``.
     """
@@ -320,8 +321,16 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
         newton_steps = NETWORK_NEWTON_STEPS if network else NEWTON_STEPS
         polish_best = 1 if network and polish_best is None else polish_best
     density = log_density_setup(problem, seed=seed)
-    result = find_map(density, map_starts(problem, density, max(n_starts, 1), seed, guesses, log=log),
-                      maxiter=map_maxiter, newton_steps=newton_steps, polish_best=polish_best)
+    starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, log=log)
+    if not starts:  # every start's least-squares fit left the model unable to simulate
+        raise ParameterError(
+            f"no MAP start simulates the record: the least-squares fit of each of the "
+            f"{max(n_starts, 1)} start(s) gave a model whose simulation diverges at "
+            f"{problem.substeps} solver substep(s) per sample (try other starting values, "
+            "a shorter window or tighter priors)"
+        )
+    result = find_map(density, starts, maxiter=map_maxiter, newton_steps=newton_steps,
+                      polish_best=polish_best)  # fmt: skip
     if not np.isfinite(result.value):
         raise ParameterError(
             "no MAP start gave a finite log density: the model diverges from every start "

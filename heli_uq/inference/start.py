@@ -324,10 +324,9 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
     starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, log=log)
     if not starts:  # every start's least-squares fit left the model unable to simulate
         raise ParameterError(
-            f"no MAP start simulates the record: the least-squares fit of each of the "
-            f"{max(n_starts, 1)} start(s) gave a model whose simulation diverges at "
-            f"{problem.substeps} solver substep(s) per sample (try other starting values, "
-            "a shorter window or tighter priors)"
+            "no MAP start simulates the record: the least-squares fit of every start gave a "
+            f"model whose simulation diverges at {problem.substeps} solver substep(s) per "
+            "sample (try other starting values, a shorter window or tighter priors)"
         )
     result = find_map(density, starts, maxiter=map_maxiter, newton_steps=newton_steps,
                       polish_best=polish_best)  # fmt: skip

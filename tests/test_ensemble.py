@@ -24,7 +24,7 @@ LP_RTOL = 1e-9
 MAIN = dict(ensembles=2, steps=400, chunk=200, seed=0)
 #: Small runs for reproducibility and resume (3 chunks per ensemble).
 SMALL = dict(ensembles=2, steps=120, chunk=40, burn=40, thin=2, seed=5)
-UNCONSTRAINED_SITES = ("omega_psi0", "omega_theta0", "psi0", "scale_noise", "sigma_psi",
+UNCONSTRAINED_SITES = ("omega_theta0", "p_psi0_ratio", "psi0", "scale_noise", "sigma_psi",
                        "sigma_theta", "theta0", "z")  # fmt: skip
 
 
@@ -77,7 +77,7 @@ def test_shapes_sites_and_info(main_run, problem, start):
     walkers = 2 * start.density.dim + 2
     burn = MAIN["steps"] // 2
     draws = (MAIN["steps"] - burn) * walkers
-    expected = set(UNCONSTRAINED_SITES) | set(problem.coords.free) | {"log_J_pitch", "sigma"}
+    expected = set(UNCONSTRAINED_SITES) | set(problem.coords.free) | {"log_J_pitch", "sigma", "omega_psi0"}
     assert set(main_run.samples) == expected
     for k, v in main_run.samples.items():
         assert v.shape[:2] == (MAIN["ensembles"], draws), k

@@ -160,3 +160,45 @@ def test_records_with_other_starts_share_compiled_programs():
         density = log_density_setup(make_problem(rec, error="iid"))
         programs.append(jax.jit(density.potential).lower(density.x_init).as_text())
     assert programs[0] == programs[1]
+
+
+#: The momentum-ratio density equals the rate density plus its log-Jacobian to rounding.
+JACOBIAN_ATOL = 1e-8
+
+
+def test_the_initial_yaw_rate_sampled_as_a_momentum_keeps_the_users_prior(monkeypatch):
+    """In identifiable coordinates a free initial yaw rate is sampled as
+    ``p = omega M22(theta0) / M22(theta_ref)`` (heli_uq.probability.coordinates).  At the
+    same physical point the log density is the one sampled in the rate itself plus
+    ``log(M22(theta_ref) / M22(theta0))``, with ``M22`` written out here from its closed
+    form; the point maps back to the rate it came from; other strategies sample the rate."""
+    from heli_uq.inference.density import constrain_draws, coordinate_names, init_sites
+    from heli_uq.model.terms.rigid_body import yaw_inertia
+    from heli_uq.probability.coordinates import Coordinates
+
+    rec = synthetic_experiment(duration=1.0, seed=4, x0=(-0.55, 0.3, 0.1, -0.7), noise_std=(0.003, 0.008))
+    model = build_model(["yaw:coulomb_friction"])
+    problem = make_problem(rec, model=model, error="iid")
+    assert problem.coords.resolved == "identifiable" and problem.x0_priors()[3].kind == "normal"
+    rng = np.random.default_rng(0)
+    start = model.start_values()
+    for _ in range(4):
+        params = {**start, **{k: start[k] * float(np.exp(rng.normal(0, 0.2))) for k in ("J_s", "m", "J_bc")}}
+        x0 = np.array([-0.55, 0.3, 0.1, -0.7]) + rng.normal(0, [0.05, 0.05, 0.1, 0.3])
+        sites = init_sites(problem, params, x0)
+        assert "omega_psi0" not in sites and "p_psi0_ratio" in sites
+        momentum = log_density_setup(problem, init_values=sites)
+        assert "p_psi0_ratio" in coordinate_names(momentum)
+        back = constrain_draws(momentum, momentum.x_init[None])
+        np.testing.assert_allclose(back["omega_psi0"][0], x0[3], rtol=1e-12)
+        with monkeypatch.context() as m:
+            m.setattr(Coordinates, "yaw_momentum", property(lambda self: False))
+            rate = log_density_setup(problem, init_values=init_sites(problem, params, x0))
+            assert "omega_psi0" in coordinate_names(rate)
+            u_rate = float(rate.potential_jit(rate.x_init))
+        phys = {k: back[k][0] for k in ("J_bc", "m", "r_c", "h", "J_s")}
+        m22 = yaw_inertia(phys, x0[0]), yaw_inertia(phys, problem.coords.yaw_theta_ref)
+        u_momentum = float(momentum.potential_jit(momentum.x_init))
+        np.testing.assert_allclose(u_momentum, u_rate - float(np.log(m22[1] / m22[0])), atol=JACOBIAN_ATOL)
+    plain = make_problem(rec, model=model, error="iid", strategy="log")
+    assert "omega_psi0" in coordinate_names(log_density_setup(plain))

@@ -389,17 +389,22 @@ def test_a_warm_start_with_an_effect_at_its_no_effect_default_is_used(tmp_path):
 DIVERGING_DAMPING = 1e6
 
 
-def test_no_start_that_simulates_is_the_documented_error_and_a_nested_candidate_falls_back():
+def test_no_start_that_simulates_is_the_documented_error_and_a_nested_candidate_falls_back(monkeypatch):
     """Every start's least-squares fit leaving a model that diverges gave ``ValueError:
     min() arg is an empty sequence`` from inside ``find_map`` (2026-12-05, the base model's
     whole-record refit in ``discover``).  It is now ``prepare_start``'s documented
     ParameterError, so a nested candidate with such a start falls back to its
-    "effect off" start, as it does for any other failed start."""
+    "effect off" start, as it does for any other failed start.  (With more substeps the
+    least-squares fit recovers even from this damping, so the cap on the substeps of the
+    retry is set to the problem's one substep.)"""
     import dataclasses
 
+    import heli_uq.inference.start as start_module
     from heli_uq.discovery.candidates import FitTask, _nested_map, off_start
     from heli_uq.errors import ParameterError
     from heli_uq.inference.start import prepare_start
+
+    monkeypatch.setattr(start_module, "MAX_SUBSTEPS", 1)
     from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model
     from heli_uq.probability import make_problem
     from heli_uq.simulation import synthetic_experiment
@@ -419,3 +424,29 @@ def test_no_start_that_simulates_is_the_documented_error_and_a_nested_candidate_
     guarded = dataclasses.replace(task, off=off_start(RIG_FIT, effects), floor=base.map_value)
     start, from_off = _nested_map(nested, guarded)
     assert from_off and np.isfinite(start.map_value)
+
+
+#: Pitch damping [N m s / rad] whose linear mode RK4 resolves at 4 substeps per 0.01 s
+#: sample (``r h`` about 1.3) and not at one (about 5, past the limit 2.785).
+STIFF_DAMPING = 5.0
+
+
+def test_a_start_too_stiff_for_the_substeps_is_fitted_again_with_more():
+    """A warm guess fitted on another window may need more substeps than the model's start
+    values: ``discover``'s whole-record refit of its base model stopped with "no MAP start
+    simulates the record" at 1 substep where its guess needs 3 (2026-12-05).  The starts
+    are now fitted again with the substeps the guess needs."""
+    from heli_uq.inference.start import prepare_start, required_substeps
+    from heli_uq.model import RIG_FIT, RIG_FIT_X0
+    from heli_uq.probability import make_problem
+    from heli_uq.simulation import synthetic_experiment
+
+    rec = synthetic_experiment(RIG_FIT, RIG_FIT_X0, duration=1.0, inputs="rig_steps", seed=5,
+                               noise_std=(0.003, 0.008))  # fmt: skip
+    stiff = {**RIG_FIT, "D_theta": STIFF_DAMPING}
+    problem = make_problem(rec, error="iid", substeps=1)
+    need = required_substeps(problem, stiff)
+    assert need > 1
+    start = prepare_start(problem, n_starts=1, guesses=[stiff])
+    assert np.isfinite(start.map_value)
+    assert start.problem.substeps >= need

@@ -230,8 +230,11 @@ def test_cli_run_main_job_end_to_end(tmp_path, capsys):
     assert main(["run", "--data", str(csv), "--draws", "0", "--out", str(out)]) == 2
 
 
-#: Variance inflation of the too-wide Laplace approximation (sd x 1.2 in every direction).
-WIDE_VARIANCE = 1.44
+#: Variance inflation of the too-wide Laplace approximation (sd x 1.5 in every direction:
+#: until 2026-12-05 x 1.2, while the posterior in the initial yaw rate's coordinates was
+#: far from Gaussian and its resampled sd well below the Laplace one; in the momentum's it
+#: is near the Laplace one, and x 1.2 lies inside the agreement factor below).
+WIDE_VARIANCE = 2.25
 #: Draws of the importance-resampling check.
 RESAMPLE_DRAWS = 400
 #: Resampled draws of the inflated Gaussian and of the Laplace itself estimate the same

@@ -20,7 +20,7 @@ from numpyro.infer import init_to_value
 from numpyro.infer.util import constrain_fn, initialize_model
 
 from heli_uq.model.tables import X0_NAMES
-from heli_uq.probability.numpyro_model import heli_model
+from heli_uq.probability.numpyro_model import YAW_MOMENTUM_SITE, heli_model
 from heli_uq.probability.priors import OUTPUTS
 from heli_uq.probability.problem import Problem
 
@@ -89,7 +89,12 @@ def init_sites(problem: Problem, params: dict, x0, sigma=(0.05, 0.05), tau=(0.5,
     if coords.marginal_scale:
         values["scale_noise"] = jnp.asarray(coords.scale_noise(z))
     for name, v, prior in zip(X0_NAMES, x0, problem.x0_priors()):
-        if prior.free:
+        if name == "omega_psi0" and prior.kind == "normal" and coords.yaw_momentum:
+            # the sampled site is the rate's momentum ratio (heli_model), of the parameters
+            # as the coordinates map them (fixed ones at their priors' values)
+            ratio = coords.yaw_inertia_ratio(coords.to_physical(z), jnp.asarray(float(x0[0])))
+            values[YAW_MOMENTUM_SITE] = jnp.asarray(float(v) * float(ratio))
+        elif prior.free:
             values[name] = jnp.asarray(float(v))
     for i, o in enumerate(OUTPUTS):
         if problem.priors.noise[f"sigma_{o}"].free:

@@ -43,6 +43,7 @@ from heli_uq.model.tables import X0_NAMES
 from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.probability.problem import Problem
 from heli_uq.simulation.stiffness import (
+    MAX_SUBSTEPS,
     capped_substeps,
     default_substeps,
     stiffness_rates,
@@ -307,11 +308,15 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
     stiff candidate's fit).
     ``log``: called with a progress line per least-squares start.
 
+    If no start simulates the record after its least-squares fit (each fit moved into a
+    model too stiff for the problem's substeps), the starts are fitted again with more
+    substeps (:func:`_retry_substeps`), up to :data:`~heli_uq.simulation.stiffness.MAX_SUBSTEPS`.
+
     Raises
     ------
     ParameterError
         If no start gives a finite log density, or no start simulates the record after its
-        least-squares fit.
+        least-squares fit, even at ``MAX_SUBSTEPS``.
     PoorBasin
         If the MAP ends above ``abandon_above``.
     """
@@ -322,7 +327,13 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
         polish_best = 1 if network and polish_best is None else polish_best
     density = log_density_setup(problem, seed=seed)
     starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, log=log)
-    if not starts:  # every start's least-squares fit left the model unable to simulate
+    while not starts and problem.substeps < MAX_SUBSTEPS:  # every fit left a model too stiff
+        problem = problem.with_substeps(_retry_substeps(problem, guesses))
+        if log is not None:
+            log(f"no MAP start simulates the record: again at {problem.substeps} solver substeps")
+        density = log_density_setup(problem, seed=seed)
+        starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, log=log)
+    if not starts:
         raise ParameterError(
             "no MAP start simulates the record: the least-squares fit of every start gave a "
             f"model whose simulation diverges at {problem.substeps} solver substep(s) per "
@@ -363,6 +374,16 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
     return Start(problem, density, np.asarray(x_map), float(value), cov, time.perf_counter() - t0,
                  float(grad_max), float(decrement),
                  NETWORK_MAP_DECREMENT_MAX if network else MAP_DECREMENT_MAX)  # fmt: skip
+
+
+def _retry_substeps(problem: Problem, guesses) -> int:
+    """Substeps for another try when no MAP start simulated: the stiffness of the guesses
+    (a fit of a nearby model, e.g. on a shorter window, may need more than the model's
+    start values), at least twice the current number, at most :data:`MAX_SUBSTEPS`."""
+    names = problem.model.start_values()
+    need = [required_substeps(problem, {k: float(v) for k, v in g.items() if k in names})
+            for g in guesses]  # fmt: skip
+    return min(max([2 * problem.substeps, *need]), MAX_SUBSTEPS)
 
 
 def _full_z(problem: Problem, sites: dict):

@@ -5,7 +5,10 @@
 * the sampling coordinates ``z`` of the model's free parameters with their physical
   priors (:mod:`heli_uq.probability.coordinates`), the common inertia scale drawn as
   ``scale_noise`` from its exact conditional prior;
-* the initial state ``theta0, psi0, omega_theta0, omega_psi0``;
+* the initial state ``theta0, psi0, omega_theta0, omega_psi0``; in identifiable
+  coordinates a free initial yaw rate is sampled as its angular momentum over the yaw
+  ratios' inertia, ``p_psi0_ratio`` (:mod:`heli_uq.probability.coordinates`), and
+  ``omega_psi0`` is deterministic;
 * the error model: ``sigma_theta, sigma_psi`` and, for AR(1), ``tau_theta, tau_psi``
   with ``rho = exp(-dt / tau)`` (deterministic ``sigma``, ``tau``, ``rho`` per output);
 * deterministic physical parameters by name.
@@ -32,7 +35,7 @@ from heli_uq.probability.noise import ar1_noise
 from heli_uq.probability.priors import OUTPUTS
 from heli_uq.probability.problem import Problem
 
-__all__ = ["heli_model", "MODES"]
+__all__ = ["heli_model", "MODES", "YAW_MOMENTUM_SITE"]
 
 MODES = ("fit", "params", "predict")
 
@@ -55,6 +58,22 @@ def _scalar_site(name: str, prior, loc=None, scale=None):
     raise ParameterError(f"{name}: prior {prior.describe()} is not supported here")
 
 
+#: The sampled site of a free initial yaw rate in identifiable coordinates: the initial yaw
+#: angular momentum ``M22(theta0) omega_psi0`` over ``M22(theta_ref)`` [rad/s].
+YAW_MOMENTUM_SITE = "p_psi0_ratio"
+
+
+def _initial_yaw_rate(coords, phys, theta0, loc, scale):
+    """``omega_psi0`` [rad/s] from the sampled momentum ratio, with the prior
+    ``normal(loc, scale)`` on ``omega_psi0`` and the Jacobian of ``omega = p / r``,
+    ``r = M22(theta0) / M22(theta_ref)``."""
+    ratio = coords.yaw_inertia_ratio(phys, theta0)
+    momentum = numpyro.sample(YAW_MOMENTUM_SITE, dist.ImproperUniform(constraints.real, (), ()))
+    omega = momentum / ratio
+    numpyro.factor("omega_psi0_prior", dist.Normal(loc, scale).log_prob(omega) - jnp.log(ratio))
+    return numpyro.deterministic("omega_psi0", omega)
+
+
 def heli_model(problem: Problem, y=None, mode: str = "fit"):
     """numpyro model of a record (module docstring)."""
     coords = problem.coords
@@ -70,8 +89,13 @@ def heli_model(problem: Problem, y=None, mode: str = "fit"):
     x0_priors = problem.x0_priors()
     x0_loc = jnp.asarray([p.a for p in x0_priors])
     x0_scale = jnp.asarray([p.b for p in x0_priors])
-    x0 = jnp.stack([_scalar_site(n, p, x0_loc[i], x0_scale[i])
-                    for i, (n, p) in enumerate(zip(X0_NAMES, x0_priors))])  # fmt: skip
+    x0 = []
+    for i, (n, p) in enumerate(zip(X0_NAMES, x0_priors)):
+        if n == "omega_psi0" and p.kind == "normal" and coords.yaw_momentum:
+            x0.append(_initial_yaw_rate(coords, phys, x0[0], x0_loc[i], x0_scale[i]))
+        else:
+            x0.append(_scalar_site(n, p, x0_loc[i], x0_scale[i]))
+    x0 = jnp.stack(x0)
     sigma = numpyro.deterministic("sigma", jnp.stack(
         [_scalar_site(f"sigma_{o}", problem.priors.noise[f"sigma_{o}"]) for o in OUTPUTS]))
     rho = None

@@ -4,7 +4,9 @@ covariance, and the number of solver substeps the fitted parameters need.
 1. **Least squares** (:func:`heli_uq.inference.least_squares.least_squares_fit`):
    Levenberg-Marquardt on the sampling coordinates and the initial state.  Started from
    :func:`start_parameters`, and from one more start where a term's start grid finds a
-   better basin (:func:`heli_uq.inference.least_squares.grid_start`).
+   better basin (:func:`heli_uq.inference.least_squares.grid_start`).  If no start
+   simulates the record after its fit (a guess fitted on another window may be stiffer
+   than the model's start values), they are fitted again with more substeps.
 2. **MAP** on the full log posterior (:func:`heli_uq.inference.map.find_map`): damped
    Newton steps from the least-squares fits (optionally after L-BFGS).
 3. **Substeps.**  A stiff effect (sharp friction) needs more RK4 substeps the larger its

@@ -192,7 +192,7 @@ def test_the_initial_yaw_rate_sampled_as_a_momentum_keeps_the_users_prior(monkey
         back = constrain_draws(momentum, momentum.x_init[None])
         np.testing.assert_allclose(back["omega_psi0"][0], x0[3], rtol=1e-12)
         with monkeypatch.context() as m:
-            m.setattr(Coordinates, "yaw_momentum", property(lambda self: False))
+            m.setattr(Coordinates, "samples_yaw_momentum", lambda self, prior: False)
             rate = log_density_setup(problem, init_values=init_sites(problem, params, x0))
             assert "omega_psi0" in coordinate_names(rate)
             u_rate = float(rate.potential_jit(rate.x_init))

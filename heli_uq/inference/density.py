@@ -89,7 +89,7 @@ def init_sites(problem: Problem, params: dict, x0, sigma=(0.05, 0.05), tau=(0.5,
     if coords.marginal_scale:
         values["scale_noise"] = jnp.asarray(coords.scale_noise(z))
     for name, v, prior in zip(X0_NAMES, x0, problem.x0_priors()):
-        if name == "omega_psi0" and prior.kind == "normal" and coords.yaw_momentum:
+        if name == "omega_psi0" and coords.samples_yaw_momentum(prior):
             # the sampled site is the rate's momentum ratio (heli_model), of the parameters
             # as the coordinates map them (fixed ones at their priors' values)
             ratio = coords.yaw_inertia_ratio(coords.to_physical(z), jnp.asarray(float(x0[0])))

@@ -49,20 +49,6 @@ mainly at the pitch angles it visits.  Relative to ``M11`` the yaw gains trade a
 to ``M22`` at a reference pitch ``theta_ref`` (``yaw_theta_ref``, by default the median
 measured pitch of the training window) the ridge is nearly straight.
 
-**The initial yaw rate as a momentum.**  In these coordinates a record whose yaw starts
-moving pins the initial yaw rate only together with ``J_s / M11`` and the yaw ratios: the
-yaw the initial rate carries before damping stops it is ``omega_psi0 M22(theta0) / D_psi``,
-and ``M22(theta0)`` is the yaw ratios' ``M22(theta_ref)`` times a factor that ``J_s``
-sets.  The ridge bends with the square of the rate (studies/notes/discovery.md, "Why the
-initial yaw rate mixes slowly"): on a 131 s record the straight line of the Laplace
-covariance along ``omega_psi0`` rose 54 nats at 2 marginal sd where the posterior's
-profile rose 2, and NUTS mixed that rate slowest of all (bulk ESS 13-184).  The
-identifiable strategy therefore samples the initial yaw angular momentum over the same
-inertia, ``p_psi0_ratio = M22(theta0) omega_psi0 / M22(theta_ref)`` [rad/s]
-(:meth:`Coordinates.yaw_inertia_ratio`, :func:`heli_uq.probability.heli_model`), along which
-that line rises 2.0 nats at 2 sd, a Gaussian's.  The prior stays the user's prior on
-``omega_psi0``, with the Jacobian ``M22(theta_ref) / M22(theta0)``.
-
 **The common scale is integrated out exactly.**  Every scaled parameter ``X`` is ``M11``
 times a function of the other coordinates, so its log is ``s + c_X(z_rest)`` with
 ``s = log M11``.  The log-normal priors among them make the conditional prior of ``s``
@@ -216,11 +202,11 @@ class Coordinates:
         """True when ``log_J_pitch`` is integrated out (identifiable strategy)."""
         return self.resolved == "identifiable"
 
-    @property
-    def yaw_momentum(self) -> bool:
-        """True when a free initial yaw rate is sampled as its momentum ratio
-        ``p_psi0_ratio`` (identifiable strategy; module docstring)."""
-        return self.resolved == "identifiable"
+    def samples_yaw_momentum(self, prior) -> bool:
+        """True when a free initial yaw rate of prior ``prior`` is sampled as its momentum
+        ratio ``p_psi0_ratio`` (a normal prior, identifiable strategy;
+        :mod:`heli_uq.probability.numpyro_model`)."""
+        return self.resolved == "identifiable" and prior.kind == "normal"
 
     def yaw_inertia_ratio(self, p, theta):
         """``M22(theta) / M22(theta_ref)`` (dimensionless) of the parameters ``p`` (jnp

@@ -7,8 +7,7 @@
   ``scale_noise`` from its exact conditional prior;
 * the initial state ``theta0, psi0, omega_theta0, omega_psi0``; in identifiable
   coordinates a free initial yaw rate is sampled as its angular momentum over the yaw
-  ratios' inertia, ``p_psi0_ratio`` (:mod:`heli_uq.probability.coordinates`), and
-  ``omega_psi0`` is deterministic;
+  ratios' inertia, ``p_psi0_ratio`` (below), and ``omega_psi0`` is deterministic;
 * the error model: ``sigma_theta, sigma_psi`` and, for AR(1), ``tau_theta, tau_psi``
   with ``rho = exp(-dt / tau)`` (deterministic ``sigma``, ``tau``, ``rho`` per output);
 * deterministic physical parameters by name.
@@ -19,6 +18,20 @@ log likelihood of :mod:`heli_uq.probability.likelihood` as the factor ``log_like
 ODE solve.  ``mode="predict"``: simulate the whole span and draw predictive angles
 (``y_sim``, and ``y_pred`` with error-model noise).  A failed solve is a rejected
 proposal (``-inf``), never an exception.
+
+**The initial yaw rate as a momentum.**  In the identifiable coordinates
+(:mod:`heli_uq.probability.coordinates`) a record whose yaw starts moving pins the initial
+yaw rate only together with ``J_s / M11`` and the yaw ratios: the yaw the initial rate
+carries before damping stops it is ``omega_psi0 M22(theta0) / D_psi``, and ``M22(theta0)``
+is the yaw ratios' ``M22(theta_ref)`` times a factor that ``J_s`` sets.  The ridge bends
+with the square of the rate (studies/notes/discovery.md, "Why the initial yaw rate mixes
+slowly"): on a 131 s record the straight line of the Laplace covariance along
+``omega_psi0`` rose 54 nats at 2 marginal sd where the posterior's profile rose 2, and NUTS
+mixed that rate slowest of all (bulk ESS 13-184).  So the initial yaw angular momentum over
+the same inertia, ``p_psi0_ratio = M22(theta0) omega_psi0 / M22(theta_ref)`` [rad/s]
+(:meth:`~heli_uq.probability.coordinates.Coordinates.yaw_inertia_ratio`), is sampled
+instead, along which that line rises 2.0 nats at 2 sd, a Gaussian's.  The prior stays the
+user's prior on ``omega_psi0``, with the Jacobian ``M22(theta_ref) / M22(theta0)``.
 """
 
 from __future__ import annotations
@@ -91,7 +104,7 @@ def heli_model(problem: Problem, y=None, mode: str = "fit"):
     x0_scale = jnp.asarray([p.b for p in x0_priors])
     x0 = []
     for i, (n, p) in enumerate(zip(X0_NAMES, x0_priors)):
-        if n == "omega_psi0" and p.kind == "normal" and coords.yaw_momentum:
+        if n == "omega_psi0" and coords.samples_yaw_momentum(p):
             x0.append(_initial_yaw_rate(coords, phys, x0[0], x0_loc[i], x0_scale[i]))
         else:
             x0.append(_scalar_site(n, p, x0_loc[i], x0_scale[i]))

@@ -36,7 +36,7 @@ from heli_uq.inference.sampler_run import SamplerRun
 from heli_uq.inference.start import Start, prepare_start
 from heli_uq.probability.problem import Problem
 
-__all__ = ["run_laplace", "importance_resample", "psis_weights", "PARETO_K_MAX"]
+__all__ = ["run_laplace", "importance_resample", "resampled_draws", "psis_weights", "PARETO_K_MAX"]
 
 #: Largest Pareto k at which the Laplace draws are trusted (Vehtari et al. 2024).
 PARETO_K_MAX = 0.7
@@ -72,7 +72,7 @@ def psis_weights(log_w: np.ndarray) -> tuple[np.ndarray, float]:
 
 def importance_resample(start: Start, n: int, seed: int = 0) -> tuple[dict, dict]:
     """``n`` Laplace draws at the MAP, resampled by their importance weights toward the
-    posterior (module docstring).
+    posterior (module docstring): :func:`resampled_draws`, constrained.
 
     Returns
     -------
@@ -80,9 +80,30 @@ def importance_resample(start: Start, n: int, seed: int = 0) -> tuple[dict, dict
         ``{name: array (n, ...)}``, constrained sites as :meth:`Start.laplace_draws`; draws
         of large weight repeated, draws of negligible weight left out.
     info : dict
+        As :func:`resampled_draws`.
+
+    Raises
+    ------
+    ParameterError
+        When no draw has a finite log density.
+    """
+    x, info = resampled_draws(start, n, seed)
+    return constrain_draws(start.density, x), info
+
+
+def resampled_draws(start: Start, n: int, seed: int = 0) -> tuple[np.ndarray, dict]:
+    """``n`` draws of ``N(start.x_map, start.covariance)`` resampled in proportion to their
+    Pareto-smoothed importance weights toward ``exp(-start.density.potential)``.
+
+    Returns
+    -------
+    x : ndarray, shape (n, d)
+        The resampled draws in the sampler's unconstrained coordinates (systematic
+        resampling: draw ``i`` kept ``floor`` or ``ceil`` of ``n w_i`` times).
+    info : dict
         ``pareto_k`` (above :data:`PARETO_K_MAX`: the Gaussian was far from the posterior
-        and the resampled draws are few distinct ones near its mode), ``ess`` (the
-        weights' effective sample size, ``1 / sum w^2``), ``distinct`` (distinct draws
+        and the resampled draws are few distinct ones near its mode, too narrow), ``ess``
+        (the weights' effective sample size, ``1 / sum w^2``), ``distinct`` (distinct draws
         kept) and ``failed_draws`` (draws whose solve failed).
 
     Raises
@@ -96,11 +117,10 @@ def importance_resample(start: Start, n: int, seed: int = 0) -> tuple[dict, dict
     w, k = psis_weights(log_w)
     if not np.all(np.isfinite(w)):
         raise ParameterError(f"Laplace draws: none of {n} has a finite log density")
-    # systematic resampling: draw i is kept floor or ceil of n w_i times
     idx = np.minimum(np.searchsorted(np.cumsum(w), (rng.uniform() + np.arange(n)) / n), n - 1)
     info = {"pareto_k": k, "ess": float(1.0 / np.sum(w**2)), "distinct": int(np.unique(idx).size),
             "failed_draws": int(np.sum(~np.isfinite(log_w)))}  # fmt: skip
-    return constrain_draws(start.density, x[idx]), info
+    return x[idx], info
 
 
 def run_laplace(problem: Problem, out_dir=None, *, chains: int = 4, draws: int = 1000, seed: int = 0,

@@ -53,7 +53,7 @@ from heli_uq.simulation.stiffness import (
 )
 
 __all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "startable", "initial_draws",
-           "whitening", "TAIL_DRAWS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
+           "whitening", "gaussian_draws", "TAIL_DRAWS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
            "NETWORK_MAP_DECREMENT_MAX", "PoorBasin"]  # fmt: skip
 
 #: Laplace draws (seeded) whose stiffness the substeps must cover (their maximum is about
@@ -221,7 +221,7 @@ class Start:
     def gaussian_draws(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` draws (n, d) of the Laplace approximation ``N(x_map, covariance)`` in the
         sampler's unconstrained coordinates."""
-        return rng.multivariate_normal(self.x_map, self.covariance, n, method="eigh")
+        return gaussian_draws(self.x_map, self.covariance, n, rng)
 
     def map_point(self) -> tuple[dict, np.ndarray]:
         """The MAP as ``(params, x0)``: every model parameter [SI] (fixed ones at their
@@ -263,6 +263,23 @@ def initial_draws(batched_log_density, n: int, dim: int, rng: np.random.Generato
     return w
 
 
+def gaussian_draws(mean, cov, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` draws (n, d) of ``N(mean, cov)`` through the Cholesky factor of ``cov`` (its
+    eigendecomposition where ``cov`` is only semi-definite).
+
+    The Cholesky factor is continuous in ``cov``, so one seed gives the same draws to
+    within rounding on machines whose arithmetic differs in the last bits (another CPU's
+    compiled MAP).  Eigenvectors are not: of two nearly equal eigenvalues (1.25323e-3 and
+    1.25327e-3 in a test posterior's Laplace covariance) they turn freely, and a relative
+    change of 1e-14 in ``cov`` moved draws by 0.15 sd (2026-12-05)."""
+    mean = np.asarray(mean, dtype=float)
+    cov = np.asarray(cov, dtype=float)
+    try:
+        return rng.multivariate_normal(mean, 0.5 * (cov + cov.T), n, method="cholesky")
+    except np.linalg.LinAlgError:
+        return rng.multivariate_normal(mean, cov, n, method="eigh")
+
+
 def whitening(start_info: dict) -> tuple[np.ndarray, np.ndarray]:
     """``(x_map, L)`` with ``L L^T`` the Laplace covariance: ``x = x_map + L w``."""
     cov = np.asarray(start_info["covariance"], dtype=float)
@@ -278,7 +295,7 @@ def tail_substeps(problem: Problem, density: LogDensity, x_map, cov, seed: int =
     """Substeps that cover the stiffness of :data:`TAIL_DRAWS` draws of ``N(x_map, cov)``
     (the sampler's unconstrained coordinates) on the fitting window."""
     rng = np.random.default_rng(seed)
-    x = rng.multivariate_normal(np.asarray(x_map), np.asarray(cov), TAIL_DRAWS, method="eigh")
+    x = gaussian_draws(x_map, cov, TAIL_DRAWS, rng)
     draws = constrain_draws(density, x)
     fixed = {k: float(p.a) for k, p in problem.priors.params.items() if not p.free}
     rates = stiffness_rates(problem.model, draws, fixed=fixed, thetas=problem.y[: problem.n_train, 0])

@@ -280,6 +280,26 @@ def test_importance_resampling_corrects_a_too_wide_gaussian_and_flags_a_too_narr
     assert narrow["ess"] < wide["ess"] / 10
 
 
+#: The mean spread [nats] of the 39 largest log-weights below the largest in the overflow check.
+SPREAD_NATS = 750.0
+
+
+def test_weights_hundreds_of_nats_apart_are_flagged_without_a_warning():
+    """Log-weights hundreds of nats apart make arviz's tail fit give k ~ 180, whose inverse
+    CDF overflows (numpy warned, an error under the tests' warning filter; it failed the
+    hybrid CLI test once, 2026-12-05): the weights are finite, sum to 1, and k flags them."""
+    from heli_uq.inference.laplace_sampler import PARETO_K_MAX, psis_weights
+
+    tail = -SPREAD_NATS * np.random.default_rng(13).exponential(1, 39)
+    log_w = np.concatenate([np.linspace(-5000.0, -3000.0, 160), tail, [0.0]])
+    with np.errstate(over="raise"):  # these weights do overflow inside arviz
+        with pytest.raises(FloatingPointError):
+            az.psislw(log_w.copy())
+    w, k = psis_weights(log_w)
+    assert np.all(np.isfinite(w)) and w.sum() == pytest.approx(1.0)
+    assert k > PARETO_K_MAX
+
+
 def test_pareto_k_flags_a_too_wide_laplace_of_the_model(synthetic_start):
     """On the model's own posterior the importance weights of a Laplace approximation
     1.5x too wide flag it, and the resampled draws come back as the model's sites."""

@@ -19,6 +19,7 @@ from heli_uq.discovery.score import MARGIN_CRPS_FRACTION
 from heli_uq.errors import ParameterError
 from heli_uq.io import atomic_write_text
 from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model
+from heli_uq.model.terms.rigid_body import yaw_inertia
 from heli_uq.simulation import synthetic_experiment
 from heli_uq.simulation.synthetic import ENCODER_QUANTUM
 
@@ -58,6 +59,9 @@ def test_discover_names_a_hidden_yaw_offset_and_closes_the_gap(tmp_path, caplog)
     assert (res["effect"], res["axis"]) == ("torque_offset", "yaw")
     lo, hi = res["parameters"]["T_0"]["ci95"]
     assert lo <= HIDDEN_T_0 <= hi
+    ratio = res["parameters"]["T_0"]["per_inertia"]  # what the record identifies
+    lo, hi = ratio["ci95"]
+    assert lo <= HIDDEN_T_0 / float(yaw_inertia(RIG_FIT, ratio["theta_ref"])) <= hi
     assert res["gap_after"]["test"]["rmse_psi"] < res["gap_before"]["test"]["rmse_psi"]
     assert res["candidates"][0]["effect"] == "torque_offset" and res["candidates"][0]["score_se"] > 0
     for name in ("report.md", "bands_before.png", "bands_after.png", "residuals.png", "candidates.png",

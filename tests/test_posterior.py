@@ -341,6 +341,38 @@ def test_a_seed_gives_the_same_laplace_draws_when_the_covariance_changes_by_roun
         assert np.max(np.abs(a - b)) < SEEDED_DRAW_SHIFT_MAX * np.sqrt(np.max(np.diag(cov)))
 
 
+#: Draws of the per-inertia summary check, and the log-sd of their common scale.
+SCALE_DRAWS = 500
+SCALE_LOG_SD = 1.0
+
+
+def test_per_inertia_summary_removes_the_common_scale():
+    """Draws that differ only along the common scale (every inertia-scaled parameter times
+    one factor per draw, what no record can see) have a wide physical interval of a
+    friction level and a pitch offset, and a zero-width ``per_inertia`` interval at the
+    truth's ratio to the inertia of the parameter's axis."""
+    from heli_uq.model import build_model
+    from heli_uq.model.terms.rigid_body import pitch_inertia, yaw_inertia
+    from heli_uq.output import parameter_summary
+
+    model = build_model(["yaw:coulomb_friction", "pitch:torque_offset"])
+    truth = {**{p.name: p.default for p in model.parameters()}, "F_c_yaw": 0.01, "T_0_pitch": -0.02}
+    problem = make_problem(synthetic_experiment(duration=1.0, seed=1), model=model, error="iid")
+    scale = np.exp(SCALE_LOG_SD * np.random.default_rng(0).standard_normal(SCALE_DRAWS))
+    post = {p.name: truth[p.name] * (scale if p.scales_with_inertia else np.ones(SCALE_DRAWS))[None]
+            for p in model.parameters() if p.name != "g"}  # fmt: skip
+    out = parameter_summary(az.from_dict(posterior=post), model, problem)
+    inertia = {"pitch": pitch_inertia(truth), "yaw": yaw_inertia(truth, problem.coords.yaw_theta_ref)}
+    for name, axis in (("F_c_yaw", "yaw"), ("T_0_pitch", "pitch"), ("K_psi_psi", "yaw")):
+        lo, hi = out[name]["ci95"]
+        assert abs(np.log(hi / lo)) > 2 * SCALE_LOG_SD  # the physical value: as wide as the scale
+        ratio = out[name]["per_inertia"]
+        assert ratio["ci95"] == pytest.approx([truth[name] / float(inertia[axis])] * 2, rel=1e-12)
+    assert out["F_c_yaw"]["per_inertia"]["theta_ref"] == problem.coords.yaw_theta_ref
+    assert "theta_ref" not in out["T_0_pitch"]["per_inertia"]  # M11 does not depend on the pitch
+    assert "per_inertia" not in out["m"] and "per_inertia" not in out["r_c"]  # no axis; unscaled
+
+
 def test_records_of_one_length_share_compiled_programs():
     """The log density of two records of one length (other inputs, angles, initial pitch
     and median pitch) lowers to one program: the record reaches it as arguments

@@ -26,7 +26,7 @@ from heli_uq.discovery.score import gain_text, gap_metrics, gap_text
 from heli_uq.figure import save_figure
 from heli_uq.io import atomic_write_text
 from heli_uq.model import build_model
-from heli_uq.output import parameter_summary, plot_bands, sample_posterior
+from heli_uq.output import plot_bands, sample_posterior
 
 __all__ = ["write_outputs", "DISCOVERY_KEYS"]
 
@@ -103,14 +103,17 @@ def _candidate_rows(rows: list[dict]) -> list[dict]:
 
 
 def _effect_parameters(summary_params: dict, effect: str, priors=()) -> dict:
-    """``{bare name: {mean, ci95, unit}}`` of the parameters of ``effect`` (``"axis:kind"``);
+    """``{bare name: {mean, ci95, unit, per_inertia}}`` of the parameters of ``effect``
+    (``"axis:kind"``; ``per_inertia`` for a torque-type parameter, see
+    :func:`~heli_uq.output.parameter_summary`);
     one the run's ``priors`` fix (``(name, Prior)`` pairs) is reported at its value, with
     ``"fixed": true`` and a zero-width interval (the tilt offered at ``a = 1``)."""
     fixed = {name: prior.a for name, prior in priors if prior.kind == "fixed"}
     out = {}
     for par in build_model([effect]).effects[0].parameters():
         if par.name in summary_params:
-            out[par.bare] = {k: summary_params[par.name][k] for k in ("mean", "ci95", "unit")}
+            out[par.bare] = {k: summary_params[par.name][k] for k in ("mean", "ci95", "unit", "per_inertia")
+                             if k in summary_params[par.name]}  # fmt: skip
         elif par.name in fixed:
             value = float(fixed[par.name])
             out[par.bare] = {"mean": value, "ci95": [value, value], "unit": par.unit, "fixed": True}
@@ -153,7 +156,7 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
                                                      _time_left(cost, t_start), priors)  # fmt: skip
         masks_after = _masks(len(at), _windows_from(at, train, test), split)
         gap_after = _gap(as_, ap, ay, masks_after)
-        params = parameter_summary(idata, build_model(effects))
+        params = summary["parameters"]
         health = summary.get("health", {"ok": summary.get("converged"), "warnings": []})
     else:
         as_, ap, ay, at, gap_after, params, health = bs, bp, by, bt, gap_before, {}, None

@@ -34,6 +34,7 @@ from heli_uq.io import atomic_write_text
 from heli_uq.log import progress_log
 from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.tables import X0_NAMES
+from heli_uq.model.terms.rigid_body import pitch_inertia, yaw_inertia
 from heli_uq.output.diagnostics import draws_converged, summarize, summary_table
 from heli_uq.output.health import check_health
 from heli_uq.output.inference_data import save_netcdf, to_inference_data
@@ -52,10 +53,17 @@ __all__ = ["sample_posterior", "bands_figure", "parameter_summary", "write_summa
 SOLVER_TOL = 1e-4
 
 
-def parameter_summary(idata, model: HeliModel) -> dict:
+def parameter_summary(idata, model: HeliModel, problem=None) -> dict:
     """``{name: {mean, sd, ci95: [lo, hi], unit}}`` of every sampled model parameter.
 
-    Effect parameters carry the axis (``F_c_yaw``) and their bare name (``bare``).
+    Effect parameters carry the axis (``F_c_yaw``) and their bare name (``bare``).  With the
+    sampled ``problem`` (its fixed values and reference pitch), a torque-type parameter
+    (``scales_with_inertia`` with an ``axis``) also gets ``per_inertia``: ``{mean, ci95,
+    unit, inertia}`` of its ratio to the inertia of its axis (``M11``, or ``M22`` at the
+    coordinates' reference pitch ``theta_ref`` [rad], then stored too), the quantity the
+    record identifies.  Its physical value
+    is that ratio times the common scale, which only the priors place
+    (``studies/notes/posterior.md``, "Where the common scale lands").
     """
     out = {}
     post = idata.posterior
@@ -63,10 +71,34 @@ def parameter_summary(idata, model: HeliModel) -> dict:
         if par.name not in post:
             continue
         v = np.asarray(post[par.name]).ravel()
-        lo, hi = np.quantile(v, [0.025, 0.975])
-        out[par.name] = {"mean": float(v.mean()), "sd": float(v.std()),
-                         "ci95": [float(lo), float(hi)], "unit": par.unit, "bare": par.bare}  # fmt: skip
+        out[par.name] = dict(_interval(v), sd=float(v.std()), unit=par.unit, bare=par.bare)
+    if problem is not None:
+        inertia = _inertia_draws(post, problem)
+        for par in model.parameters():
+            if par.name in out and par.scales_with_inertia and par.axis is not None:
+                ratio = np.asarray(post[par.name]).ravel() / inertia[par.axis]
+                out[par.name]["per_inertia"] = dict(_interval(ratio), unit=f"({par.unit}) / (kg m^2)",
+                                                    inertia=INERTIA_LABELS[par.axis])  # fmt: skip
+                if par.axis == "yaw":
+                    out[par.name]["per_inertia"]["theta_ref"] = float(problem.coords.yaw_theta_ref)
     return out
+
+
+#: The inertia each axis' torque-type parameters are divided by in ``per_inertia``.
+INERTIA_LABELS = {"pitch": "M11", "yaw": "M22(theta_ref)"}
+
+
+def _interval(v: np.ndarray) -> dict:
+    lo, hi = np.quantile(v, [0.025, 0.975])
+    return {"mean": float(v.mean()), "ci95": [float(lo), float(hi)]}
+
+
+def _inertia_draws(post, problem) -> dict:
+    """Per-draw ``M11`` and ``M22(theta_ref)`` [kg m^2] (fixed parameters at their values)."""
+    p = {n: np.asarray(post[n]).ravel() if n in post else float(prior.a)
+         for n, prior in problem.priors.params.items()}  # fmt: skip
+    return {"pitch": np.asarray(pitch_inertia(p)),
+            "yaw": np.asarray(yaw_inertia(p, problem.coords.yaw_theta_ref))}  # fmt: skip
 
 
 def _draw_point(problem, post, chain: int, draw: int) -> tuple[dict, list]:
@@ -235,7 +267,7 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     idata = to_inference_data(run, seed=seed)
     problem = run.problem
     summary = summarize(idata, wall_seconds=None)
-    summary["parameters"] = parameter_summary(idata, problem.model)
+    summary["parameters"] = parameter_summary(idata, problem.model, problem)
     summary["initial_state_priors"] = {n: p.describe() for n, p in zip(X0_NAMES, problem.x0_priors())}
     summary["solver_error_rad"], summary["stiffness"] = _solver_check(problem, idata)
     if summary["solver_error_rad"] is not None and not summary["solver_error_rad"] <= SOLVER_TOL:

@@ -705,6 +705,14 @@ def test_an_effect_parameter_the_run_fixes_is_reported_at_its_value():
         "F_c = 0.02 [0.01, 0.03] N m")
     tilt = _effect_parameters(summary, "yaw:thrust_tilt", fix)["a"]
     assert parameter_text("a", tilt) == "a = 1, fixed by the run's priors"
+    ratio = {"mean": 0.8, "ci95": [0.5, 1.1], "unit": "(N m) / (kg m^2)", "inertia": "M22(theta_ref)",
+             "theta_ref": -0.4}  # fmt: skip
+    with_ratio = _effect_parameters({"F_c_yaw": {**summary["F_c_yaw"], "per_inertia": ratio}},
+                                    "yaw:coulomb_friction")["F_c"]  # fmt: skip
+    assert with_ratio["per_inertia"] == ratio
+    assert parameter_text("F_c", with_ratio) == (
+        "F_c = 0.02 [0.01, 0.03] N m; F_c / M22(theta_ref) = 0.8 [0.5, 1.1] (N m) / (kg m^2), "
+        "what the record identifies")
 
 
 def test_the_store_keeps_each_task_of_a_model_for_a_rerun(tmp_path):

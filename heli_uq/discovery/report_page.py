@@ -21,12 +21,19 @@ CLOSER_V_FRACTION = 0.8
 
 
 def parameter_text(name: str, p: dict) -> str:
-    """``"F_c = 0.0207 [0.0061, 0.043] N m"`` from a ``discovery.json`` parameter entry; a
-    parameter the run's priors fix is given at its value and said to be fixed."""
+    """``"F_c = 0.0207 [0.0061, 0.043] N m"`` from a ``discovery.json`` parameter entry, and
+    ``"; F_c / M22(theta_ref) = 0.8 [0.5, 1.1] (N m) / (kg m^2), what the record identifies"``
+    when it has ``per_inertia``; a parameter the run's priors fix is given at its value and
+    said to be fixed."""
     unit = "" if p["unit"] == "1" else f" {p['unit']}"  # dimensionless: no unit
     if p.get("fixed"):
         return f"{name} = {p['mean']:.4g}{unit}, fixed by the run's priors"
-    return f"{name} = {p['mean']:.4g} [{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}]{unit}"
+    text = f"{name} = {p['mean']:.4g} [{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}]{unit}"
+    if "per_inertia" in p:
+        r = p["per_inertia"]
+        text += (f"; {name} / {r['inertia']} = {r['mean']:.4g} [{r['ci95'][0]:.4g}, {r['ci95'][1]:.4g}] "
+                 f"{r['unit']}, what the record identifies")  # fmt: skip
+    return text
 
 
 def gap_warnings(before: dict, after: dict) -> list[str]:

@@ -369,6 +369,8 @@ def test_per_inertia_summary_removes_the_common_scale():
         ratio = out[name]["per_inertia"]
         assert ratio["ci95"] == pytest.approx([truth[name] / float(inertia[axis])] * 2, rel=1e-12)
     assert out["F_c_yaw"]["per_inertia"]["theta_ref"] == problem.coords.yaw_theta_ref
+    assert out["F_c_yaw"]["per_inertia"]["unit"] == "(N m) / (kg m^2)"
+    assert out["J_s"]["per_inertia"]["unit"] == "1"  # an inertia over an inertia
     assert "theta_ref" not in out["T_0_pitch"]["per_inertia"]  # M11 does not depend on the pitch
     assert "per_inertia" not in out["m"] and "per_inertia" not in out["r_c"]  # no axis; unscaled
 

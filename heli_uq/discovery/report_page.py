@@ -31,8 +31,9 @@ def parameter_text(name: str, p: dict) -> str:
     text = f"{name} = {p['mean']:.4g} [{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}]{unit}"
     if "per_inertia" in p:
         r = p["per_inertia"]
-        text += (f"; {name} / {r['inertia']} = {r['mean']:.4g} [{r['ci95'][0]:.4g}, {r['ci95'][1]:.4g}] "
-                 f"{r['unit']}, what the record identifies")  # fmt: skip
+        r_unit = "" if r["unit"] == "1" else f" {r['unit']}"
+        text += (f"; {name} / {r['inertia']} = {r['mean']:.4g} [{r['ci95'][0]:.4g}, {r['ci95'][1]:.4g}]"
+                 f"{r_unit}, what the record identifies")  # fmt: skip
     return text
 
 

@@ -77,15 +77,17 @@ def parameter_summary(idata, model: HeliModel, problem=None) -> dict:
         for par in model.parameters():
             if par.name in out and par.scales_with_inertia and par.axis is not None:
                 ratio = np.asarray(post[par.name]).ravel() / inertia[par.axis]
-                out[par.name]["per_inertia"] = dict(_interval(ratio), unit=f"({par.unit}) / (kg m^2)",
+                unit = "1" if par.unit == INERTIA_UNIT else f"({par.unit}) / ({INERTIA_UNIT})"
+                out[par.name]["per_inertia"] = dict(_interval(ratio), unit=unit,
                                                     inertia=INERTIA_LABELS[par.axis])  # fmt: skip
                 if par.axis == "yaw":
                     out[par.name]["per_inertia"]["theta_ref"] = float(problem.coords.yaw_theta_ref)
     return out
 
 
-#: The inertia each axis' torque-type parameters are divided by in ``per_inertia``.
+#: The inertia each axis' torque-type parameters are divided by in ``per_inertia``, and its unit.
 INERTIA_LABELS = {"pitch": "M11", "yaw": "M22(theta_ref)"}
+INERTIA_UNIT = "kg m^2"
 
 
 def _interval(v: np.ndarray) -> dict:

@@ -61,9 +61,8 @@ def parameter_summary(idata, model: HeliModel, problem=None) -> dict:
     (``scales_with_inertia`` with an ``axis``) also gets ``per_inertia``: ``{mean, ci95,
     unit, inertia}`` of its ratio to the inertia of its axis (``M11``, or ``M22`` at the
     coordinates' reference pitch ``theta_ref`` [rad], then stored too), the quantity the
-    record identifies.  Its physical value
-    is that ratio times the common scale, which only the priors place
-    (``studies/notes/posterior.md``, "Where the common scale lands").
+    record identifies.  Its physical value is that ratio times the common scale, which only
+    the priors place (``studies/notes/posterior.md``, "Where the common scale lands").
     """
     out = {}
     post = idata.posterior

@@ -39,6 +39,7 @@ import numpy as np
 
 from heli_uq.errors import ParameterError
 from heli_uq.inference.density import LogDensity, constrain_draws, init_sites, log_density_setup
+from heli_uq.inference.gaussian import gaussian_draws
 from heli_uq.inference.least_squares import grid_start, least_squares_fit, x0_guess
 from heli_uq.inference.map import NEWTON_STEPS, find_map, laplace, leave_saddles, newton_polish
 from heli_uq.model.tables import X0_NAMES
@@ -53,7 +54,7 @@ from heli_uq.simulation.stiffness import (
 )
 
 __all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "startable", "initial_draws",
-           "whitening", "gaussian_draws", "TAIL_DRAWS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
+           "whitening", "TAIL_DRAWS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
            "NETWORK_MAP_DECREMENT_MAX", "PoorBasin"]  # fmt: skip
 
 #: Laplace draws (seeded) whose stiffness the substeps must cover (their maximum is about
@@ -261,23 +262,6 @@ def initial_draws(batched_log_density, n: int, dim: int, rng: np.random.Generato
                              "diverges near the MAP)")  # fmt: skip
     w[bad] = 0.0
     return w
-
-
-def gaussian_draws(mean, cov, n: int, rng: np.random.Generator) -> np.ndarray:
-    """``n`` draws (n, d) of ``N(mean, cov)`` through the Cholesky factor of ``cov`` (its
-    eigendecomposition where ``cov`` is only semi-definite).
-
-    The Cholesky factor is continuous in ``cov``, so one seed gives the same draws to
-    within rounding on machines whose arithmetic differs in the last bits (another CPU's
-    compiled MAP).  Eigenvectors are not: of two nearly equal eigenvalues (1.25323e-3 and
-    1.25327e-3 in a test posterior's Laplace covariance) they turn freely, and a relative
-    change of 1e-14 in ``cov`` moved draws by 0.15 sd (2026-12-05)."""
-    mean = np.asarray(mean, dtype=float)
-    cov = np.asarray(cov, dtype=float)
-    try:
-        return rng.multivariate_normal(mean, 0.5 * (cov + cov.T), n, method="cholesky")
-    except np.linalg.LinAlgError:
-        return rng.multivariate_normal(mean, cov, n, method="eigh")
 
 
 def whitening(start_info: dict) -> tuple[np.ndarray, np.ndarray]:

@@ -105,7 +105,10 @@ def test_unidentified_coordinates_leave_the_angles_unchanged(coords):
 
 
 def test_log_prior_includes_the_change_of_variables(coords):
-    """log p(z) - sum log p_w(w(z)) equals log|det dw/dz|, computed here by finite differences."""
+    """The product of the physical priors in ``z``: log p(z) - sum log p_w(w(z)) equals
+    log|det dw/dz|, computed here by finite differences.  (The identifiable coordinates'
+    prior replaces the common scale's part of it:
+    ``test_the_common_scale_has_the_prior_of_one_parameter``.)"""
     z = np.asarray(coords.from_physical(_params(coords)))
 
     def w_of(zz):
@@ -119,7 +122,7 @@ def test_log_prior_includes_the_change_of_variables(coords):
     base = sum(float(coords.priors[n].log_density_coordinate(w[i]))
                for i, n in enumerate(coords.free))  # fmt: skip
     expected = base + np.linalg.slogdet(jac)[1]
-    got = float(coords.log_prior(jnp.asarray(z)))
+    got = float(coords._log_prior_and_physical(jnp.asarray(z))[0])
     assert abs(got - expected) < JACOBIAN_RTOL * max(1.0, abs(expected))
     assert np.isfinite(float(jax.grad(coords.log_prior)(jnp.asarray(z)).sum()))
 
@@ -187,6 +190,78 @@ def test_scale_is_integrated_out_exactly(model):
     cond = float(coords.log_prior(z.at[0].set(s))) - float(log_marginal)
     gauss = -0.5 * 0.7**2 - np.log(float(sd)) - 0.5 * np.log(2 * np.pi)
     assert abs(cond - gauss) < 1e-9
+
+
+def _parabola(log_density, z, steps=(-1.0, 0.0, 1.0, 2.5)):
+    """Vertex, sd and the misfit at the last step of the parabola through the first three
+    values of ``log_density`` along ``z[0]`` (the misfit is 0 for an exact Gaussian)."""
+    f = [float(log_density(z.at[0].add(d))) for d in steps]
+    a, b, c = np.polyfit(steps[:3], f[:3], 2)
+    return float(z[0]) - b / (2 * a), 1.0 / np.sqrt(-2 * a), f[3] - np.polyval([a, b, c], steps[3])
+
+
+@pytest.mark.parametrize("case", ["defaults", "weighed_mass", "effects"])
+def test_the_common_scale_has_the_prior_of_one_parameter(case):
+    """The prior of ``log M11`` given the other coordinates is a Gaussian centred where the
+    product of the log-normal priors puts it, as wide as the tightest *single* log-normal
+    scaled prior (sigma_log 2 by default, where the product's is 0.67; a weighed mass,
+    sigma_log 0.05, still pins it), and untouched by the half-normal and normal priors of
+    the effects, which pull the product's towards their own scale.  The product is written
+    out here (physical priors and the Jacobian of the map)."""
+    model = EFFECTS if case == "effects" else BASE
+    changes = {"m": {"lognormal": [TABLE1["m"], 0.05]}} if case == "weighed_mass" else {}
+    priors = _priors(model, **changes)
+    where = {"yaw_theta_ref": -0.3, "u_ref": U_REF} if model is EFFECTS else {}
+    coords = Coordinates(model, priors, **where)
+    values = dict(TABLE1, **(EFFECT_VALUES if model is EFFECTS else {}))
+    z = jnp.asarray(coords.from_physical(values))
+
+    def product(zz):
+        phys = coords.to_physical(zz)
+        w = jnp.stack([priors[n].to_coordinate(phys[n]) for n in coords.free])
+        jac = jnp.linalg.slogdet(jax.jacfwd(coords.prior_coordinates)(zz))[1]
+        return sum(priors[n].log_density_coordinate(w[i]) for i, n in enumerate(coords.free)) + jac
+
+    mean, sd, misfit = _parabola(coords.log_prior, z)
+    assert abs(misfit) < JACOBIAN_RTOL
+    tightest = min(priors[n].b for n in coords.free
+                   if model.parameter(n).scales_with_inertia and priors[n].kind == "lognormal")  # fmt: skip
+    assert abs(sd - tightest) < JACOBIAN_RTOL
+    assert tightest == (0.05 if case == "weighed_mass" else 2.0)
+    product_mean, product_sd, product_misfit = _parabola(product, z)
+    if model is BASE:  # only log-normal scaled priors: the product is Gaussian in log M11
+        assert abs(product_misfit) < JACOBIAN_RTOL and abs(mean - product_mean) < JACOBIAN_RTOL
+        assert product_sd < (0.7 if case == "defaults" else 0.05)
+    else:  # half-normal and normal torques bend the product's and pull it up
+        assert abs(product_misfit) > 1e3 * JACOBIAN_RTOL and product_mean > mean
+
+
+@pytest.mark.parametrize("model", [BASE, EFFECTS], ids=["paper", "effects"])
+def test_prior_draws_follow_the_common_scale_prior(model):
+    """``joint_draws`` turns draws of the product of the priors into draws of the
+    coordinates' prior: ``eps`` (:meth:`Coordinates.scale_noise`) is the standard normal
+    it was given, every ratio of a log-normal parameter is the product draw's (so the
+    angles are), and the parameters whose priors are not log-normal keep their product
+    draws when ``eps`` is 0, i.e. at the scale's conditional mean, where their priors hold."""
+    priors = PriorSet.default(model)
+    coords = Coordinates(model, priors.params)
+    assert coords.resolved == "identifiable"
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        product = {n: float(v) for n, v in priors.draw(model, rng).items()}
+        values = {n: float(priors.params[n].a) for n in model.names if not priors.params[n].free}
+        eps = rng.standard_normal()
+        joint = coords.joint_draws({**values, **product}, eps)
+        assert abs(coords.scale_noise(coords.from_physical(joint)) - eps) < 1e-9
+        at_mean = coords.joint_draws({**values, **product}, 0.0)
+        z_product, z_joint = coords.from_physical({**values, **product}), coords.from_physical(joint)
+        for i, name in enumerate(coords.names[1:], 1):
+            parameter = coords._specs[i][1]
+            if parameter is None or priors.params[parameter].kind == "lognormal":
+                assert abs(z_joint[i] - z_product[i]) < 1e-9, name
+            else:
+                assert abs(at_mean[parameter] - product[parameter]) <= 1e-12 * abs(product[parameter])
+    assert coords.joint_draws(product, 0.0).keys() == product.keys()
 
 
 def test_yaw_gains_are_relative_to_the_yaw_inertia_at_the_reference_pitch():

@@ -28,19 +28,29 @@ COVERAGE_TOL = 0.04
 
 
 def test_prior_draws_follow_every_prior_in_its_coordinate():
-    """Each free parameter's draws have the exact mean and sd of its prior in the sampling
-    coordinate (log for log-normal and half-normal, identity for normal:
-    :meth:`Prior.coordinate_moments`); the initial angles centre on the record's first
-    sample; AR(1) gives rho = exp(-dt / tau)."""
+    """Each free parameter's draws have the exact mean and sd of the sampler's prior in
+    the sampling coordinate (log for log-normal and half-normal, identity for normal:
+    :meth:`Prior.coordinate_moments`): its own prior's, except that every log-normal
+    inertia-scaled parameter, ``log X = log M11 + c_X``, has the common scale's
+    conditional sd ``S`` (the tightest such prior's, 2) in place of the product's pooled
+    ``1 / sqrt(sum 1 / sd_i^2)``, i.e. variance ``sd^2 - pooled^2 + S^2``
+    (:mod:`heli_uq.probability.coordinates`); the initial angles centre on the record's
+    first sample; AR(1) gives rho = exp(-dt / tau)."""
     record = synthetic_experiment(duration=2.0, seed=1)
     problem = make_problem(record, error="ar1")
     draws = prior_draws(problem, MOMENT_DRAWS, seed=3)
     free = [n for n, p in problem.priors.params.items() if p.free]
     assert set(free) <= set(draws) and not set(problem.priors.params) - set(free) & set(draws)
+    scaled = [n for n in free if problem.model.parameter(n).scales_with_inertia]
+    assert all(problem.priors.params[n].kind == "lognormal" for n in scaled) and len(scaled) >= 8
+    sds = np.array([problem.priors.params[n].b for n in scaled])
+    pooled, common = 1.0 / np.sqrt(np.sum(1.0 / sds**2)), sds.min()
     for name in free:
         prior = problem.priors.params[name]
         w = np.asarray(prior.to_coordinate(draws[name])).ravel()
         mean, sd = prior.coordinate_moments()
+        if name in scaled:
+            sd = np.sqrt(sd**2 - pooled**2 + common**2)
         assert abs(w.mean() - mean) <= MEAN_SE * sd / np.sqrt(MOMENT_DRAWS), name
         assert w.std() == pytest.approx(sd, rel=SD_REL), name
     for i, name in enumerate(X0_NAMES[:2]):

@@ -51,7 +51,7 @@ from heli_uq.inference import prepare_start, run_nuts
 from heli_uq.io import atomic_write_text
 from heli_uq.log import progress_log
 from heli_uq.model import TABLE1, X0_NAMES, HeliModel, Prior
-from heli_uq.probability import PriorSet, make_problem
+from heli_uq.probability import Coordinates, PriorSet, make_problem
 from heli_uq.probability.priors import SIGMA_PRIOR, X0_ANGLE_SD, X0_RATE_SD
 from heli_uq.provenance import code_version
 from heli_uq.simulation import SYNTHETIC_X0, synthetic_experiment
@@ -96,7 +96,8 @@ def study_priors(prior_sd: float, h_sd: float, x0_prior: str = "data",
 
 
 def draw_replicate(r: int, priors: PriorSet, duration: float, model: HeliModel = MODEL):
-    """Truth and record of replicate ``r``, redrawn until the simulation is finite.
+    """Truth and record of replicate ``r``, redrawn until the simulation is finite: the
+    truth from the prior the sampler uses (:meth:`heli_uq.probability.Problem.draw_parameters`).
 
     Returns
     -------
@@ -114,7 +115,11 @@ def draw_replicate(r: int, priors: PriorSet, duration: float, model: HeliModel =
     rng = np.random.default_rng([2026, r])
     for attempt in range(MAX_REDRAWS):
         truth = {n: float(priors.params[n].sample(rng)) for n in model.names}
-        truth = {n: float(v) for n, v in model.draw_joint(truth, rng).items()}  # a term's joint prior
+        truth = model.draw_joint(truth, rng)  # a term's joint prior
+        # the common scale's prior (Coordinates.joint_draws), from its own stream: a model
+        # with only log-normal scaled priors keeps its ratios, so its records, exactly
+        eps = np.random.default_rng([2026, r, attempt, 1]).standard_normal()
+        truth = {n: float(v) for n, v in Coordinates(model, priors.params).joint_draws(truth, eps).items()}
         sigma = float(SIGMA_PRIOR.sample(rng))
         x0 = np.array(SYNTHETIC_X0) + rng.normal(size=4) * [X0_ANGLE_SD, X0_ANGLE_SD,
                                                            X0_RATE_SD, X0_RATE_SD]

@@ -190,7 +190,7 @@ def to_inference_data(run, *, prior_draws: int = 500, seed: int = 0, pp_draws: i
     y_pred = pred_all[inverse[ll_flat.size:]].reshape(chains, pp_idx.size, -1, 2)
 
     rng = np.random.default_rng(seed)
-    prior = problem.priors.draw(problem.model, rng, (1, prior_draws))
+    prior = problem.draw_parameters(rng, (1, prior_draws))
     masks = problem.masks()
     idata = az.from_dict(
         posterior=s, sample_stats=stats, prior=prior,

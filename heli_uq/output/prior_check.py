@@ -71,13 +71,14 @@ NOTE_RULES = {"failed_above": FAILED_NOTE, "unphysical_above": UNPHYSICAL_NOTE,
 
 
 def prior_draws(problem, n: int, seed: int = 0) -> dict:
-    """``n`` joint draws from the priors of ``problem``, in the layout of a sampler's
+    """``n`` joint draws from the prior of ``problem`` (its parameters' as the samplers use
+    it, :meth:`~heli_uq.probability.Problem.draw_parameters`), in the layout of a sampler's
     samples with one chain: ``{parameter: (1, n)}`` for every free model parameter,
     ``{theta0, psi0, omega_theta0, omega_psi0: (1, n)}``, ``sigma`` (1, n, 2) [rad] and,
     for AR(1) errors, ``tau`` [s] and ``rho`` (1, n, 2)."""
     rng = np.random.default_rng(seed)
     priors: PriorSet = problem.priors
-    out = priors.draw(problem.model, rng, (1, n))
+    out = problem.draw_parameters(rng, (1, n))
     for name, prior in zip(X0_NAMES, problem.x0_priors()):
         out[name] = prior.sample(rng, (1, n))
     out["sigma"] = np.stack([priors.noise[f"sigma_{o}"].sample(rng, (1, n)) for o in OUTPUTS], axis=-1)

@@ -77,6 +77,13 @@ class Problem:
         start, held = self.record_start, self.model.held_still
         return tuple(self.priors.x0_prior(name, start, held) for name in X0_NAMES)
 
+    def draw_parameters(self, rng, shape=()) -> dict:
+        """Draws ``{name: array shape}`` of every free model parameter from the prior the
+        samplers use: the product of the priors (:meth:`PriorSet.draw`) with the common
+        scale's prior of the coordinates (:meth:`Coordinates.joint_draws`)."""
+        draws = self.priors.draw(self.model, rng, shape)
+        return self.coords.joint_draws(draws, rng.standard_normal(shape))
+
     def windows(self) -> dict[str, tuple[int, int]]:
         """``{"train": (0, n_train), "test": (start, stop)}`` sample-index ranges."""
         out = {"train": (0, self.n_train)}

@@ -205,9 +205,9 @@ def test_the_common_scale_has_the_prior_of_one_parameter(case):
     """The prior of ``log M11`` given the other coordinates is a Gaussian centred where the
     product of the log-normal priors puts it, as wide as the tightest *single* log-normal
     scaled prior (sigma_log 2 by default, where the product's is 0.67; a weighed mass,
-    sigma_log 0.05, still pins it), and untouched by the half-normal and normal priors of
-    the effects, which pull the product's towards their own scale.  The product is written
-    out here (physical priors and the Jacobian of the map)."""
+    sigma_log 0.05, still pins it given the ratios), and untouched by the half-normal and
+    normal priors of the effects, which pull the product's towards their own scale.  The
+    product is written out here (physical priors and the Jacobian of the map)."""
     model = EFFECTS if case == "effects" else BASE
     changes = {"m": {"lognormal": [TABLE1["m"], 0.05]}} if case == "weighed_mass" else {}
     priors = _priors(model, **changes)

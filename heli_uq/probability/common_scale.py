@@ -17,8 +17,10 @@ and spring at the edge of its physical interval
 (``studies/notes/posterior.md#where-the-common-scale-lands``).  So the prior of ``s``
 given ``z_rest`` is ``N(mean, sd)`` with ``mean`` the log-normal product's conditional
 mean and ``sd`` the *tightest single* log-normal scaled prior's (2 by default: the scale
-is known as well as one parameter is; a weighed mass, ``m`` log-normal with sd 0.05,
-still pins it), and the priors that are not log-normal are evaluated at the scale's
+is known as well as one parameter is; a tight prior still pins it given the ratios, and
+the physical values as far as the record identifies that parameter's ratio: a
+calibrated gain does, a weighed mass does not, its ratio to ``M11`` trading with the
+pitch gain), and the priors that are not log-normal are evaluated at the scale's
 conditional mean: a friction level's prior is on its size relative to the inertias the
 other priors imply.  When every scaled prior is log-normal, the ratios' prior is exactly
 the product's.  Only the physical values of scaled parameters change; angles, ratios,

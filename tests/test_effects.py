@@ -544,9 +544,9 @@ def test_hidden_effect_is_recovered(kind):
     and torque, which no record fixes (the null direction above), so its interval is where
     the scale's prior puts it.  Under the product of the priors the yaw friction's interval
     [0.0041, 0.062] N m ended at the truth 0.004: the truth's yaw inertia lay at the 2.5 %
-    quantile (:mod:`heli_uq.probability.coordinates`, "The common scale's prior").  Now
-    the truth's yaw inertia must lie inside the central :data:`SCALE_QUANTILES` of its
-    posterior (0.33 on this record)."""
+    quantile (:mod:`heli_uq.probability.common_scale`).  Now the truth's yaw inertia must
+    lie inside the central :data:`SCALE_QUANTILES` of its posterior (0.33 on this
+    record)."""
     from heli_uq.inference import prepare_start
     from heli_uq.model.terms.rigid_body import yaw_inertia
     from heli_uq.probability import make_problem

@@ -67,7 +67,7 @@ class CommonScale:
         Returns ``(log_marginal, mean, sd)``: the log density of the log-normal scaled
         priors with ``log M11`` integrated out; the mean of ``log M11`` given ``z_rest``
         that their product implies; and the sd of the tightest one of them, not the
-        product's (module docstring, "The common scale's prior").
+        product's (module docstring).
         """
         idx = self._gaussian_scale_terms()
         z0 = jnp.concatenate([jnp.zeros(1), z_rest])

@@ -29,7 +29,7 @@ tau_theta, tau_psi (AR(1))  log-normal(0.5 s, 1.0)       correlation time of the
 The record fixes only ratios of the inertia-scaled parameters, so the samplers' prior
 along their common scale is not the product of these: it is as wide as the tightest
 single log-normal one among them, and the others are taken at its mean
-(:mod:`heli_uq.probability.coordinates`, "The common scale's prior").
+(:mod:`heli_uq.probability.common_scale`).
 
 The initial-state priors may be ``normal`` or ``fixed`` (an explicit normal replaces the
 default centred on the record); the error-model priors ``lognormal`` or ``fixed``.

@@ -249,12 +249,12 @@ def test_prior_draws_follow_the_common_scale_prior(model):
     rng = np.random.default_rng(3)
     for _ in range(5):
         product = {n: float(v) for n, v in priors.draw(model, rng).items()}
-        values = {n: float(priors.params[n].a) for n in model.names if not priors.params[n].free}
+        product.update({n: float(p.a) for n, p in priors.params.items() if not p.free})
         eps = rng.standard_normal()
-        joint = coords.joint_draws({**values, **product}, eps)
+        joint = coords.joint_draws(product, eps)
         assert abs(coords.scale_noise(coords.from_physical(joint)) - eps) < 1e-9
-        at_mean = coords.joint_draws({**values, **product}, 0.0)
-        z_product, z_joint = coords.from_physical({**values, **product}), coords.from_physical(joint)
+        at_mean = coords.joint_draws(product, 0.0)
+        z_product, z_joint = coords.from_physical(product), coords.from_physical(joint)
         for i, name in enumerate(coords.names[1:], 1):
             parameter = coords._specs[i][1]
             if parameter is None or priors.params[parameter].kind == "lognormal":

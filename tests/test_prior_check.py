@@ -34,7 +34,7 @@ def test_prior_draws_follow_every_prior_in_its_coordinate():
     inertia-scaled parameter, ``log X = log M11 + c_X``, has the common scale's
     conditional sd ``S`` (the tightest such prior's, 2) in place of the product's pooled
     ``1 / sqrt(sum 1 / sd_i^2)``, i.e. variance ``sd^2 - pooled^2 + S^2``
-    (:mod:`heli_uq.probability.coordinates`); the initial angles centre on the record's
+    (:mod:`heli_uq.probability.common_scale`); the initial angles centre on the record's
     first sample; AR(1) gives rho = exp(-dt / tau)."""
     record = synthetic_experiment(duration=2.0, seed=1)
     problem = make_problem(record, error="ar1")

@@ -49,12 +49,16 @@ class CommonScale:
         physical priors plus ``log |det dw/dz|``; in the identifiable one that with the
         common scale's prior of the module docstring (:meth:`prior_and_physical` and the
         Gaussian of ``log M11``)."""
+        return self._full_prior_and_physical(z)[0]
+
+    def _full_prior_and_physical(self, z):
+        """``(log prior, parameters)`` of full coordinates ``z``, one evaluation of the map."""
         if not self.marginal_scale:
-            return self._log_prior_and_physical(z)[0]
+            return self._log_prior_and_physical(z)
         _, mean, sd = self.scale_conditional(z[1:])
         eps = (z[0] - mean) / sd
-        rest = self.prior_and_physical(z[1:], eps)[0]
-        return rest - 0.5 * eps**2 - 0.5 * jnp.log(2 * jnp.pi) - jnp.log(sd)
+        rest, _, out = self.prior_and_physical(z[1:], eps)
+        return rest - 0.5 * eps**2 - 0.5 * jnp.log(2 * jnp.pi) - jnp.log(sd), out
 
     def _gaussian_scale_terms(self):
         """Free parameters whose log-normal prior coordinate is ``log M11 + c(z_rest)``."""
@@ -101,9 +105,7 @@ class CommonScale:
         in the identifiable strategy every scaled one is its value at the scale's
         conditional mean times ``exp(sd eps)``, where the priors are evaluated."""
         if eps is None:
-            if self.marginal_scale:
-                return self.log_prior(z), z, self.to_physical(z)
-            log_prior, out = self._log_prior_and_physical(z)
+            log_prior, out = self._full_prior_and_physical(z)
             return log_prior, z, out
         log_marginal, mean, sd = self.scale_conditional(z)
         at_mean = jnp.concatenate([mean[None], z])
@@ -130,12 +132,11 @@ class CommonScale:
         precision = {n: 1.0 / self.priors[n].b ** 2 for n in names}
         shift = sum(precision[n] * (self.priors[n].coordinate_moments()[0] - np.log(draws[n]))
                     for n in names) / sum(precision.values())  # fmt: skip
-        spread = np.exp(self.scale_sd * np.asarray(eps))
-        out = {}
-        for n, v in draws.items():
-            scaled = self._decl[n].scales_with_inertia if n in self._decl else False
-            out[n] = v * spread * (np.exp(shift) if n in precision else 1.0) if scaled else v
-        return out
+        factor = {n: np.exp(self.scale_sd * np.asarray(eps)) for n in draws
+                  if self._decl[n].scales_with_inertia}  # fmt: skip
+        for n in names:
+            factor[n] = factor[n] * np.exp(shift)
+        return {n: v * factor[n] if n in factor else v for n, v in draws.items()}
 
     def scale_noise(self, z) -> float:
         """``eps`` of full coordinates ``z`` (inverse of the map in :meth:`marginal_log_prior`)."""

@@ -17,6 +17,7 @@ import warnings
 import arviz as az
 import numpy as np
 
+from heli_uq.output.divergences import divergence_sites
 from heli_uq.output.network import is_network_weight
 from heli_uq.probability.likelihood import loss_v
 from heli_uq.simulation.physical import unphysical_draws as _unphysical
@@ -86,6 +87,9 @@ def convergence(idata) -> dict:
     stats = idata.sample_stats
     if "diverging" in stats:
         out["divergences"] = int(stats["diverging"].sum())
+        sites = divergence_sites(idata)
+        if sites:  # by chain and by position: where to look (divergences.py)
+            out["divergence_sites"] = sites
         depth = int(info.get("max_tree_depth", 10))
         out["tree_depth_saturation"] = float((stats["tree_depth"] >= depth).mean())
         out["mean_leapfrog_steps"] = float(stats["n_steps"].mean())

@@ -4,15 +4,17 @@ Every run is checked (:func:`check_health`, from the ``summary.json`` record of
 :func:`heli_uq.output.diagnostics.summarize`); a failed check gives one warning sentence
 with the measured value and the limit.  Checks, and the flag they raise:
 
-* **UNCONVERGED**: split R-hat above :data:`~heli_uq.output.diagnostics.RHAT_MAX`; bulk
-  or tail ESS below :data:`~heli_uq.output.diagnostics.ESS_MIN`; any divergent
-  transition; more than :data:`TREE_DEPTH_SATURATION_MAX` of the draws at the tree-depth
-  limit; a chain whose adapted step size collapsed (below :data:`STEP_SIZE_MIN` in the
-  whitened coordinates, where the posterior has unit scale, or :data:`STEP_SIZE_RATIO_MIN`
-  of another chain's); E-BFMI below :data:`~heli_uq.output.diagnostics.BFMI_MIN`; a MAP
-  whose Newton decrement is above :data:`MAP_DECREMENT_MAX`, for a sampler whose draws
-  are centred on the MAP (Laplace, or a run that does not name its sampler); emcee's own
-  warnings (chains shorter than 50 autocorrelation times, low acceptance).
+* **UNCONVERGED**: split R-hat above :data:`~heli_uq.output.diagnostics.RHAT_MAX`; bulk or
+  tail ESS below :data:`~heli_uq.output.diagnostics.ESS_MIN`; any divergent transition
+  (its sentence says where: one chain, or the scalars the divergent draws sit at the tail
+  of, :mod:`heli_uq.output.divergences`); more than :data:`TREE_DEPTH_SATURATION_MAX` of
+  the draws at the tree-depth limit; a chain whose adapted step size collapsed (below
+  :data:`STEP_SIZE_MIN` in the whitened coordinates, where the posterior has unit scale,
+  or :data:`STEP_SIZE_RATIO_MIN` of another chain's); E-BFMI below
+  :data:`~heli_uq.output.diagnostics.BFMI_MIN`; a MAP whose Newton decrement is above
+  :data:`MAP_DECREMENT_MAX`, for a sampler whose draws are centred on the MAP (Laplace, or
+  a run that does not name its sampler); emcee's own warnings (chains shorter than 50
+  autocorrelation times, low acceptance).
 * **Notes** (no flag): the same MAP check for NUTS and emcee, whose MAP only starts the
   chains and whitens them: their draws are judged by the checks above, so a MAP that
   stopped short of the optimum (a network's capped polish) is reported, not failed; a NUTS
@@ -36,6 +38,7 @@ import math
 
 from heli_uq.inference.start import MAP_DECREMENT_MAX as _START_DECREMENT_MAX
 from heli_uq.output.diagnostics import BFMI_MIN, ESS_MIN, RHAT_MAX
+from heli_uq.output.divergences import divergence_text
 
 __all__ = ["check_health", "format_warnings", "TREE_DEPTH_SATURATION_MAX", "STEP_SIZE_MIN",
            "STEP_SIZE_RATIO_MIN", "MAP_DECREMENT_MAX", "MAP_STARTS_ONLY", "UNCONVERGED",
@@ -83,7 +86,9 @@ def _sampler_warnings(s: dict) -> list[str]:
             out.append(f"{label} ESS {s[key]:.0f} < {ESS_MIN}"
                        + (f" (worst: {s.get('worst_ess_variable')})" if label == "bulk" else ""))
     if s.get("divergences", 0) > 0:
-        out.append(f"{s['divergences']} divergent transitions (of {s['chains'] * s['draws']} draws)")
+        where = divergence_text(s.get("divergence_sites"))
+        out.append(f"{s['divergences']} divergent transitions (of {s['chains'] * s['draws']} draws)"
+                   + (f": {where}" if where else ""))
     if _bad(s.get("tree_depth_saturation"), TREE_DEPTH_SATURATION_MAX, True):
         out.append(f"{100 * s['tree_depth_saturation']:.0f} % of draws at the tree-depth limit "
                    f"(> {100 * TREE_DEPTH_SATURATION_MAX:.0f} %)")  # fmt: skip

@@ -113,3 +113,28 @@ def test_a_hidden_tilt_is_a_case_outside_the_table_and_fix_parses():
     for bad in ("a_yaw", "a_yaw=uniform:0:1"):  # no value; a prior, not a fixed value
         with pytest.raises(argparse.ArgumentTypeError, match="NAME=VALUE"):
             _fixed(bad)
+
+
+def _confusion_rows() -> list[dict]:
+    rows = []
+    for path in sorted((REPO / "studies" / "results").glob("discovery_confusion*.jsonl")):
+        for line in path.read_text().splitlines():
+            row = json.loads(line)
+            if (row.get("best") or {}).get("score_per_sample") is not None:
+                rows.append(row)
+    return rows
+
+
+def test_the_log_density_margin_lies_between_the_stored_null_and_effect_records():
+    """The margin of ``none`` is calibrated on the confusion study's records: every record
+    without a hidden effect scored below it, every record whose hidden effect was named
+    as hidden scored above it.  A margin moved outside that range, or a stored record that
+    contradicts it, fails here."""
+    from heli_uq.discovery import MARGIN_PER_SAMPLE
+
+    rows = _confusion_rows()
+    nulls = [r["best"]["score_per_sample"] for r in rows if r["case"] == "none"]
+    named = [r["best"]["score_per_sample"] for r in rows
+             if r["case"] != "none" and r["correct"] and "+" not in r["case"]]  # fmt: skip
+    assert len(nulls) >= 30 and len(named) >= 100
+    assert max(nulls) < MARGIN_PER_SAMPLE < min(named)

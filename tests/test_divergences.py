@@ -120,6 +120,10 @@ def test_divergences_of_one_chain_are_said_and_reach_the_health_sentence():
     assert "at no scalar in particular" in text
     warnings = check_health(summary)["warnings"]
     assert any(w.startswith("6 divergent transitions") and "all 6 in chain 2" in w for w in warnings)
+    div[2] = False
+    div[1, 7] = True
+    one = divergence_sites(az.from_dict(posterior=posterior, sample_stats={"diverging": div}))
+    assert divergence_text(one).startswith("in chain 1")
 
 
 @pytest.mark.parametrize("diverging", [np.zeros((2, 50), bool), None])

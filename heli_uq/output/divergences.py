@@ -130,9 +130,9 @@ def divergence_text(sites: dict | None) -> str:
     chains = sites["per_chain"]
     worst = int(np.argmax(chains))
     if len(chains) > 1 and chains[worst] >= 0.75 * sites["count"]:
-        count = sites["count"]
-        share = f"all {count}" if chains[worst] == count else f"{chains[worst]} of {count}"
-        parts.append(f"{share} in chain {worst}")
+        count, held = sites["count"], chains[worst]
+        share = "" if count == 1 else f"all {count} " if held == count else f"{held} of {count} "
+        parts.append(f"{share}in chain {worst}")
     if sites["named"]:
         parts.append("at " + ", ".join(f"{r['side']} {r['variable']} (mean normal score "
                                        f"{r['mean_score']:+.2f}, z {r['z']:+.1f})" for r in sites["named"]))

@@ -36,7 +36,8 @@ import numpy as np
 from scipy.special import ndtri
 from scipy.stats import rankdata
 
-__all__ = ["divergence_sites", "divergence_text", "normal_scores", "Z_NAMED", "MAX_NAMED", "SHIFTS"]
+__all__ = ["divergence_sites", "divergence_text", "normal_scores", "Z_NAMED", "MAX_NAMED", "SHIFTS",
+           "CHAIN_SHARE"]
 
 #: A scalar is named where ``|z|`` of its divergent draws' mean normal score reaches this.
 Z_NAMED = 3.0
@@ -44,6 +45,8 @@ Z_NAMED = 3.0
 MAX_NAMED = 3
 #: Circular shifts of the divergence indicators that make the null (module docstring).
 SHIFTS = 200
+#: The health line names the chain that holds at least this share of the divergences.
+CHAIN_SHARE = 0.75
 
 
 def normal_scores(values: np.ndarray) -> np.ndarray:
@@ -122,14 +125,15 @@ def divergence_sites(idata, *, z_named: float = Z_NAMED, max_named: int = MAX_NA
 
 
 def divergence_text(sites: dict | None) -> str:
-    """One clause for a health line: ``"12 of 14 in chain 1; at low nn_w_0_yaw (mean normal
-    score -1.9, z -7.1)"``; empty without divergences."""
+    """One clause for a health line, e.g. ``"12 of 14 in chain 1; at high
+    z[log_D_psi_yaw_ratio] (mean normal score +1.93, z +5.7), ..."`` (the rig's 2-unit
+    FNN(u) posterior); empty without divergences."""
     if not sites:
         return ""
     parts = []
     chains = sites["per_chain"]
     worst = int(np.argmax(chains))
-    if len(chains) > 1 and chains[worst] >= 0.75 * sites["count"]:
+    if len(chains) > 1 and chains[worst] >= CHAIN_SHARE * sites["count"]:
         count, held = sites["count"], chains[worst]
         share = "" if count == 1 else f"all {count} " if held == count else f"{held} of {count} "
         parts.append(f"{share}in chain {worst}")

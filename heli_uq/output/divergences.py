@@ -66,9 +66,10 @@ def _scalars(posterior) -> dict[str, np.ndarray]:
         if not extra:
             out[str(var)] = flat[:, 0]
             continue
-        labels = [", ".join(str(c) for c in combo) for combo in np.ndindex(*values.shape[2:])]
-        if len(extra) == 1:
+        if len(extra) == 1:  # named coordinates, e.g. z[log_D_psi_yaw_ratio]
             labels = [str(c) for c in da[extra[0]].values]
+        else:
+            labels = [", ".join(str(c) for c in combo) for combo in np.ndindex(*values.shape[2:])]
         for j, label in enumerate(labels):
             out[f"{var}[{label}]"] = flat[:, j]
     return out

@@ -158,7 +158,8 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
         windows = {} if args.no_split else {"train": (0.0, split), "test": (split, args.seconds)}
         res = discover(rec, tmp, **windows, budget=args.budget,
                        seed=seed, scheduler=args.scheduler, candidates=args.candidates,
-                       max_effects=max(1, len(model.effects)), priors=dict(args.fix),
+                       max_effects=max(args.max_effects, len(model.effects)),
+                       priors=dict(args.fix),
                        score=args.score)  # fmt: skip
     added = {f"{a['axis']}:{a['effect']}": a["parameters"] for a in res["added"]}
     named = "+".join(added) or "none"
@@ -190,6 +191,7 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
             **({"start": args.start} if args.start != "rig" else {}),
             **({"split": False} if args.no_split else {}),
             **({"fix": dict(args.fix)} if args.fix else {}),
+            **({"max_effects": args.max_effects} if args.max_effects > 1 else {}),
             **({"refit": refit_facts(keep / "refit" / "summary.json")} if keep else {})}  # fmt: skip
 
 
@@ -319,6 +321,9 @@ def main(argv=None) -> int:
                     help="no train/test split, as `heli-uq discover REC --out DIR` runs: the "
                          "candidates are fitted on the first 70 %% and scored on the rest, the "
                          "refit uses the whole record")
+    ap.add_argument("--max-effects", type=int, default=1, metavar="N",
+                    help="effects discover may add (at least the hidden count): 2 on a record "
+                         "of one effect or none checks that the second step adds nothing")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     ap.add_argument("--keep", default=None, metavar="DIR",
                     help="keep each record's discover outputs in DIR/CASE_INPUTS_SEED (default: "

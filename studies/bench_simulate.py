@@ -17,11 +17,12 @@ angles, zero rates):
   reverse-mode autodiff, relative to the forward solve (``grad / forward``);
 * a batch of 8 parameter sets (Table 1 scaled by 0.95 ... 1.05) under ``jax.vmap``
   (forward and gradient);
-* the same forward / gradient / ratio for two models with one yaw effect:
+* the same forward / gradient / ratio for models with one effect:
   ``yaw:coulomb_friction`` with ``F_c_yaw`` = 0.004 N m (stiff: at the substeps
   :func:`heli_uq.simulation.default_substeps` gives over the record's pitch angles, as
   :func:`heli_uq.probability.make_problem` does, and at 5) and ``yaw:torque_offset`` with
-  ``T_0_yaw`` = 0.002 N m (smooth: 1 substep); the gradient per substep relative to the
+  ``T_0_yaw`` = 0.002 N m (smooth: 1 substep), and both motors' lags (``motor_lag``,
+  ``tau`` = 0.3 s: a scan over the voltages before the solve, 1 substep); the gradient per substep relative to the
   mechanistic gradient, and for several substeps the forward against a baseline that
   unrolls each sample's substeps in one loop body (the scheme before 2026-11-25);
 * accuracy: max angle error [rad] vs the DOP853 reference of ``tests/reference.py``
@@ -68,6 +69,7 @@ EFFECT_CASES = (
     ("yaw:coulomb_friction", {"F_c_yaw": 0.004}, "default"),
     ("yaw:coulomb_friction", {"F_c_yaw": 0.004}, 5),
     ("yaw:torque_offset", {"T_0_yaw": 0.002}, 1),
+    ("pitch:motor_lag,yaw:motor_lag", {"tau_pitch": 0.3, "tau_yaw": 0.3}, 1),
 )
 
 

@@ -38,6 +38,8 @@ def _effects_help() -> str:
                  "over omega_b (option, 0.02 rad/s); with coulomb_friction the Stribeck law")
     lines.append("  thrust_tilt        yaw only: the yaw torques K_psi_theta u_theta - K_psi_psi u_psi "
                  "times (1 - a (1 - cos theta)); a [1] in [0, 2], 1 = the geometry's cos theta")
+    lines.append("  motor_lag          a motor's thrust lags its voltage: tau du'/dt = u - u', tau [s] "
+                 "(0 = none); the axis names the motor, as for deadband")
     lines.append("  neural_torque      hybrid model: a tanh network torque of the voltages (weights "
                  "nn_W_*, nn_b_*, nn_w_* [N m]); options inputs (u | u,x,v) and hidden in a "
                  "model file")

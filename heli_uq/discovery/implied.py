@@ -52,7 +52,9 @@ class ImpliedTorque:
     x, v, a : ndarray, shape (N, 2)
         Angles [rad], rates [rad/s], accelerations [rad/s^2] from the smoothed record.
     u : ndarray, shape (N, 2)
-        Voltages [V].
+        Voltages [V] as recorded (a model's lag acts on them in :meth:`acting_voltages`).
+    dt : float
+        Sample time [s].
     residual : ndarray, shape (N, 2)
         ``a - a_model`` [rad/s^2]: what the regression explains.
     tau : ndarray, shape (N, 2)
@@ -63,8 +65,15 @@ class ImpliedTorque:
     v: np.ndarray
     a: np.ndarray
     u: np.ndarray
+    dt: float
     residual: np.ndarray
     tau: np.ndarray
+
+    def acting_voltages(self, model: HeliModel, p):
+        """The voltages (N, 2) [V] the torques of ``model`` see at parameters ``p``: the
+        recorded ones after the model's sequence maps (a motor's lag; else themselves)."""
+        u = jnp.asarray(self.u)
+        return model.filtered_voltages(p, u, self.dt) if model.filters_voltages else u
 
 
 def implied_torque(model: HeliModel, params: dict, y, u, dt: float, *,
@@ -86,11 +95,24 @@ def implied_torque(model: HeliModel, params: dict, y, u, dt: float, *,
     y = np.asarray(y, dtype=float)
     x, v, a = smoothed_derivatives(y, dt, window_s)
     p = _complete(model, params)
-    g = jax.jit(jax.vmap(lambda xi, vi, ui: model.acceleration(model.prepare(p), xi, vi, ui)))
-    resid = a - np.asarray(g(jnp.asarray(x), jnp.asarray(v), jnp.asarray(u, dtype=float)))
+    data = ImpliedTorque(x=x, v=v, a=a, u=np.asarray(u, dtype=float), dt=float(dt),
+                         residual=np.zeros_like(a), tau=np.zeros_like(a))  # fmt: skip
+    resid = a - np.asarray(_accelerations(model, data)(p))
     mass = np.asarray(jax.vmap(lambda th: jnp.diagonal(mass_matrix(p, th)))(jnp.asarray(x[:, 0])))
-    return ImpliedTorque(x=x, v=v, a=a, u=np.asarray(u, dtype=float), residual=resid,
-                         tau=mass * resid)  # M is diagonal (Sec. 2.3)
+    return dataclasses.replace(data, residual=resid, tau=mass * resid)  # M is diagonal (Sec. 2.3)
+
+
+def _accelerations(model: HeliModel, data: ImpliedTorque):
+    """``p -> a_model`` (N, 2) [rad/s^2] at the smoothed states of ``data`` and the voltages
+    the model's torques see there (after a lag, which reads the whole sequence)."""
+    x, v = jnp.asarray(data.x), jnp.asarray(data.v)
+
+    def a_model(p):
+        prepared = model.prepare(p)
+        u = data.acting_voltages(model, p)
+        return jax.vmap(lambda xi, vi, ui: model.acceleration(prepared, xi, vi, ui))(x, v, u)
+
+    return jax.jit(a_model)
 
 
 def _jacobian_columns(model: HeliModel, p: dict, names, data: ImpliedTorque) -> np.ndarray:
@@ -101,14 +123,10 @@ def _jacobian_columns(model: HeliModel, p: dict, names, data: ImpliedTorque) -> 
     base columns would span the residual itself).
     """
     names = list(names)
-
-    def h(theta, x, v, u):
-        q = {**p, **dict(zip(names, theta))}
-        return model.acceleration(model.prepare(q), x, v, u)
-
+    a_model = _accelerations(model, data)
     theta0 = jnp.asarray([p[n] for n in names])
-    jac = jax.jit(jax.vmap(jax.jacfwd(h), in_axes=(None, 0, 0, 0)))
-    return np.asarray(jac(theta0, *(jnp.asarray(z) for z in (data.x, data.v, data.u))))
+    jac = jax.jit(jax.jacfwd(lambda theta: a_model({**p, **dict(zip(names, theta))})))
+    return np.asarray(jac(theta0))
 
 
 def effect_features(base: HeliModel, params: dict, effect: str, data: ImpliedTorque):

@@ -65,6 +65,10 @@ class HeliModel(eqx.Module):
                     raise ParameterError(f"model: {term.label} and {seen[par.name]} both declare "
                                      f"parameter {par.name!r}; use each effect once per axis")
                 seen[par.name] = term.label
+        adapted = [t.label for t in self.terms if t.record_keys]
+        if self.filters_voltages and adapted:
+            raise ParameterError(f"model: {', '.join(adapted)} is set up on the recorded voltages, "
+                                 "which a motor lag changes; use one or the other")  # fmt: skip
         for term in self.terms:
             missing = [name for name in term.reads() if name not in seen]
             if missing:
@@ -214,6 +218,20 @@ class HeliModel(eqx.Module):
         u = (u[0], u[1])
         for term in self.inputs:
             u = term(p, u)
+        return u
+
+    @property
+    def filters_voltages(self) -> bool:
+        """True if an input map acts on the voltage sequence (a motor's lag)."""
+        return any(t.filters_sequence for t in self.inputs)
+
+    def filtered_voltages(self, p, u, h):
+        """The voltages ``u`` (N, 2) [V], held on solver steps of ``h`` [s], after every
+        sequence map (:meth:`~heli_uq.model.terms.base.AbstractInputMap.filter_sequence`),
+        in order; ``u`` itself without one."""
+        for term in self.inputs:
+            if term.filters_sequence:
+                u = term.filter_sequence(p, u, h)
         return u
 
     @property

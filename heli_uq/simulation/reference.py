@@ -7,6 +7,8 @@ friction) raise.  :func:`reference_solve` integrates the same vector field
 ``Kvaerno5``) under a PID step-size controller, with every switch of the held voltages
 given as a jump time, so each constant-input stretch is integrated on its own: the
 independent form against which :func:`solver_error` measures the fixed-step solution.
+A motor's lag (:mod:`heli_uq.model.terms.motor_lag`), which the fixed-step solver
+applies exactly to the held voltages of each step, is integrated here as two more states.
 """
 
 from __future__ import annotations
@@ -54,6 +56,42 @@ def _adaptive_solve(y0, p, levels, jump_ts, ts, *, model, t1, dt0, rtol, atol):
         max_steps=MAX_STEPS, throw=False)  # fmt: skip
 
 
+@functools.partial(jax.jit, static_argnames=("model", "lagged", "t1", "dt0", "rtol", "atol"))
+def _adaptive_lag_solve(y0, p, taus, levels, jump_ts, ts, *, model, lagged, t1, dt0, rtol, atol):
+    """:func:`_adaptive_solve` with the motors' lags as two more states: ``y`` (6,) ends
+    with the lagged voltages, ``tau du'/dt = u - u'`` on the axes of ``lagged`` (a pair of
+    bools; ``taus`` (2,) [s] their time constants), which the model's torques see."""
+    mask = jnp.asarray(lagged)
+
+    def field(t, y, args):
+        p, taus, levels, jump_ts = args
+        held = levels[jnp.searchsorted(jump_ts, t, side="right")]
+        acting = jnp.where(mask, y[4:], held)
+        rate = jnp.where(mask, (held - y[4:]) / jnp.where(mask, taus, 1.0), 0.0)
+        return jnp.concatenate([model(t, y[:4], (p, acting)), rate])
+
+    controller = diffrax.PIDController(rtol=rtol, atol=atol,
+                                       jump_ts=jump_ts if jump_ts.shape[0] else None)  # fmt: skip
+    return diffrax.diffeqsolve(
+        diffrax.ODETerm(field), diffrax.Kvaerno5(), t0=0.0, t1=t1, dt0=dt0, y0=y0,
+        args=(p, taus, levels, jump_ts), saveat=diffrax.SaveAt(ts=ts),
+        stepsize_controller=controller, max_steps=MAX_STEPS, throw=False)  # fmt: skip
+
+
+def _lags(model: HeliModel, p) -> tuple[tuple[bool, bool], np.ndarray]:
+    """Which motors lag (time constant above the floor) and their time constants [s]."""
+    from heli_uq.model.terms.motor_lag import TAU_FLOOR
+
+    taus = np.ones(2)
+    lagged = [False, False]
+    for term in model.inputs:
+        if term.filters_sequence:
+            i, tau = term.time_constant(p)
+            if float(tau) > TAU_FLOOR:
+                lagged[i], taus[i] = True, float(tau)
+    return tuple(lagged), taus
+
+
 def reference_solve(params: Mapping | None, x0, u, dt: float, *, model: HeliModel | None = None,
                     rtol: float = REFERENCE_RTOL, atol: float = REFERENCE_ATOL) -> np.ndarray:  # fmt: skip
     """States on the sample grid, shape (N, 4), by an adaptive stiff solver.
@@ -83,11 +121,17 @@ def reference_solve(params: Mapping | None, x0, u, dt: float, *, model: HeliMode
     starts = np.concatenate([[0], np.flatnonzero(np.any(u[1:] != u[:-1], axis=1)) + 1])
     # parameters, levels and switch times are arguments of one compiled solve per model,
     # record shape and tolerances (closed over, each parameter set compiled anew)
+    lagged, taus = _lags(model, p)
     p = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in p.items()}
-    sol = _adaptive_solve(jnp.asarray(x0, dtype=jnp.float64), p, jnp.asarray(u[starts]),
-                          jnp.asarray(jumps), jnp.asarray(ts), model=model,
-                          t1=float(ts[-1]) if n > 1 else dt, dt0=dt / 4, rtol=rtol, atol=atol)  # fmt: skip
-    ys = np.asarray(sol.ys)
+    span = {"model": model, "t1": float(ts[-1]) if n > 1 else dt, "dt0": dt / 4, "rtol": rtol,
+            "atol": atol}
+    levels, jumps, ts = jnp.asarray(u[starts]), jnp.asarray(jumps), jnp.asarray(ts)
+    if any(lagged):  # the lagged voltages start at the first held voltage
+        y0 = jnp.concatenate([jnp.asarray(x0, dtype=jnp.float64), levels[0]])
+        sol = _adaptive_lag_solve(y0, p, jnp.asarray(taus), levels, jumps, ts, lagged=lagged, **span)
+    else:
+        sol = _adaptive_solve(jnp.asarray(x0, dtype=jnp.float64), p, levels, jumps, ts, **span)
+    ys = np.asarray(sol.ys)[:, :4]
     if not (sol.result == diffrax.RESULTS.successful) or not np.all(np.isfinite(ys)):
         raise ParameterError(f"reference solve failed ({sol.result}); the parameters make the "
                              "model singular or too stiff for the step budget")  # fmt: skip

@@ -339,9 +339,13 @@ def solve(
     dt = jnp.asarray(dt, dtype=jnp.float64)
     args, unravel = ravel_pytree((dyn_model, prepared, dt / substeps))
     adjoint, plain = _make_trajectory(static_model, unravel)
-    us = held_inputs(model, prepared[1], u)
-    if substeps > 1:  # one RK4 step per row of the inputs, each sample's held `substeps` times
-        us = jnp.repeat(us, substeps, axis=0)
+    if model.filters_voltages:  # a lag acts on each solver step's voltage, then the held torques
+        rows = jnp.repeat(u, substeps, axis=0) if substeps > 1 else u
+        us = held_inputs(model, prepared[1], model.filtered_voltages(prepared[1], rows, dt / substeps))
+    else:
+        us = held_inputs(model, prepared[1], u)
+        if substeps > 1:  # one RK4 step per row of the inputs, each sample's held `substeps` times
+            us = jnp.repeat(us, substeps, axis=0)
     ys = (adjoint if gradients == "adjoint" else plain)(args, us, x0)[::substeps]
     finite = jnp.all(jnp.isfinite(ys))
     bounded = jnp.all(jnp.abs(jnp.where(finite, ys, 0.0)) < MAX_ABS_STATE)

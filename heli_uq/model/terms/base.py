@@ -207,7 +207,20 @@ class AbstractTorque(AbstractTerm):
 
 class AbstractInputMap(AbstractTerm):
     """A map of the voltages ``(p, u) -> u'`` [V] applied before every torque term; ``u``
-    and ``u'`` are pairs ``(u_theta, u_psi)`` of scalars."""
+    and ``u'`` are pairs ``(u_theta, u_psi)`` of scalars.
+
+    A map with memory (a motor's lag) sets :attr:`filters_sequence` and acts on the whole
+    held-voltage sequence in :meth:`filter_sequence`, before the solve and before every
+    map of single samples (its ``__call__`` is then the identity).
+    """
+
+    #: True for a map that acts on the voltage sequence (:meth:`filter_sequence`).
+    filters_sequence: ClassVar[bool] = False
+
+    def filter_sequence(self, p, u, h):
+        """The voltages ``u`` (N, 2) [V] held on solver steps of ``h`` [s], mapped as a
+        sequence (N, 2) [V]; the identity unless :attr:`filters_sequence`."""
+        return u
 
     @abc.abstractmethod
     def __call__(self, p, u):

@@ -22,9 +22,10 @@ angles, zero rates):
   :func:`heli_uq.simulation.default_substeps` gives over the record's pitch angles, as
   :func:`heli_uq.probability.make_problem` does, and at 5) and ``yaw:torque_offset`` with
   ``T_0_yaw`` = 0.002 N m (smooth: 1 substep), and both motors' lags (``motor_lag``,
-  ``tau`` = 0.3 s: a scan over the voltages before the solve, 1 substep); the gradient per substep relative to the
-  mechanistic gradient, and for several substeps the forward against a baseline that
-  unrolls each sample's substeps in one loop body (the scheme before 2026-11-25);
+  ``tau`` = 0.3 s: a scan over the voltages before the solve, 1 substep); the gradient
+  per substep relative to the mechanistic gradient, and for several substeps the forward
+  against a baseline that unrolls each sample's substeps in one loop body (the scheme
+  before 2026-11-25);
 * accuracy: max angle error [rad] vs the DOP853 reference of ``tests/reference.py``
   (rtol 1e-11, restarted at each switch of the inputs).
 

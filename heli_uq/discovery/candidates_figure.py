@@ -109,4 +109,7 @@ def _crps_panel(ax, rows: list[dict], n_scored: int, y: np.ndarray, colors=None)
                      fontsize="medium")  # fmt: skip
     else:
         ax.set_title(f"CRPS gain, which decides\n({KEY})", loc="left", fontsize="small")
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(nbins=4))  # the panel is narrow: 5-digit labels overlap
     ax.grid(True, axis="x", alpha=0.4)

@@ -72,8 +72,7 @@ class ImpliedTorque:
     def acting_voltages(self, model: HeliModel, p):
         """The voltages (N, 2) [V] the torques of ``model`` see at parameters ``p``: the
         recorded ones after the model's sequence maps (a motor's lag; else themselves)."""
-        u = jnp.asarray(self.u)
-        return model.filtered_voltages(p, u, self.dt) if model.filters_voltages else u
+        return model.filtered_voltages(p, jnp.asarray(self.u), self.dt)
 
 
 def implied_torque(model: HeliModel, params: dict, y, u, dt: float, *,

@@ -23,6 +23,7 @@ import numpy as np
 
 from heli_uq.errors import ParameterError
 from heli_uq.model.heli_model import HeliModel
+from heli_uq.model.terms.motor_lag import TAU_FLOOR
 from heli_uq.simulation.solver import solve
 
 __all__ = ["reference_solve", "solver_error", "REFERENCE_RTOL", "REFERENCE_ATOL"]
@@ -80,8 +81,6 @@ def _adaptive_lag_solve(y0, p, taus, levels, jump_ts, ts, *, model, lagged, t1, 
 
 def _lags(model: HeliModel, p) -> tuple[tuple[bool, bool], np.ndarray]:
     """Which motors lag (time constant above the floor) and their time constants [s]."""
-    from heli_uq.model.terms.motor_lag import TAU_FLOOR
-
     taus = np.ones(2)
     lagged = [False, False]
     for term in model.inputs:

@@ -116,6 +116,7 @@ def test_the_feature_for_discovery_reads_the_whole_sequence():
     np.testing.assert_allclose(column[:, :, 0], fd, rtol=1e-5, atol=1e-6 * np.max(np.abs(fd)))
 
 
+@pytest.mark.long  # 18 s; the lag's other tests hold its physics in CI
 def test_a_hidden_yaw_lag_is_recovered():
     """A record simulated by the continuous lag's adaptive solve, τ = 0.3 s on the yaw
     motor: the MAP converges and the central 95 % of its Laplace draws hold τ."""

@@ -11,6 +11,7 @@ from heli_uq.model.terms.base import AbstractInputMap as AbstractInputMap
 from heli_uq.model.terms.base import AbstractTerm as AbstractTerm
 from heli_uq.model.terms.base import AbstractTorque as AbstractTorque
 from heli_uq.model.terms.coulomb_friction import CoulombFriction as CoulombFriction
+from heli_uq.model.terms.cross_damping import CrossDamping as CrossDamping
 from heli_uq.model.terms.deadband import DeadBand as DeadBand
 from heli_uq.model.terms.feature_torque import FeatureTorque as FeatureTorque
 from heli_uq.model.terms.gp_torque import GPTorque as GPTorque
@@ -33,18 +34,19 @@ EFFECTS = {cls.kind: cls for cls in (DeadBand, CoulombFriction, QuadraticDrag, T
 #: Every term a model file or ``--effects`` may name: the vocabulary plus the stiction
 #: variant of friction (breakaway above the sliding level; outside the effects table), the
 #: yaw torques' ``cos theta`` tilt with pitch (a correction of the paper's torque), the
-#: first-order lag of a motor's voltage (a motor's dynamics), the
+#: first-order lag of a motor's voltage (a motor's dynamics), the torque of one axis'
+#: rate on the other (cross damping), the
 #: neural torque of the hybrid model, the feature torque of an equation recovered from it
 #: and the Gaussian-process torque of the voltages (model discrepancy).  Only the
 #: vocabulary's effects are discovery candidates.
 TERMS = {**EFFECTS, Stiction.kind: Stiction, ThrustTilt.kind: ThrustTilt,
-         MotorLag.kind: MotorLag, NeuralTorque.kind: NeuralTorque,
+         MotorLag.kind: MotorLag, CrossDamping.kind: CrossDamping, NeuralTorque.kind: NeuralTorque,
          FeatureTorque.kind: FeatureTorque, GPTorque.kind: GPTorque}
 
 __all__ = [
     "AbstractEffect", "AbstractInputMap", "AbstractTerm", "AbstractTorque", "AbstractMechanics",
     "ClosedFormMechanics", "LagrangianMechanics", "LinearTorque", "CoulombFriction", "DeadBand",
     "QuadraticDrag", "QuadraticThrust", "TorqueOffset", "TorsionalSpring", "NeuralTorque",
-    "FeatureTorque", "GPTorque", "Stiction", "ThrustTilt", "MotorLag",
+    "FeatureTorque", "GPTorque", "Stiction", "ThrustTilt", "MotorLag", "CrossDamping",
     "EFFECTS", "TERMS",
 ]  # fmt: skip

@@ -6,8 +6,9 @@ matrix ``D``, which Sec. 2.5 takes diagonal.  A body that pitches moves its roto
 the air across their discs, which changes their drag torque about the yaw axis (and a
 yawing body the pitch rotor's inflow); the cables that cross both joints couple them too.
 A hybrid posterior's network on the rig record leaned on the pitch rate for its yaw torque
-(studies/notes/hybrid.md), which is this term's form.  Linear in the state, so no
-smoothing and no stiffness is added.
+(studies/notes/hybrid.md), which is this term's form; fitted there it buys the training
+window and is refused by the held-out one (studies/notes/discovery.md).  Linear in the
+state, so no smoothing and no stiffness is added.
 """
 
 from __future__ import annotations

@@ -40,33 +40,19 @@ def _switch_times(u: np.ndarray, dt: float) -> np.ndarray:
     return change * dt
 
 
-@functools.partial(jax.jit, static_argnames=("model", "t1", "dt0", "rtol", "atol"))
-def _adaptive_solve(y0, p, levels, jump_ts, ts, *, model, t1, dt0, rtol, atol):
-    """The diffrax solve of :func:`reference_solve` (``jump_ts``: the switch times, maybe none)."""
-
-    def field(t, y, args):
-        p, levels, jump_ts = args
-        k = jnp.searchsorted(jump_ts, t, side="right")
-        return model(t, y, (p, levels[k]))
-
-    controller = diffrax.PIDController(rtol=rtol, atol=atol,
-                                       jump_ts=jump_ts if jump_ts.shape[0] else None)  # fmt: skip
-    return diffrax.diffeqsolve(
-        diffrax.ODETerm(field), diffrax.Kvaerno5(), t0=0.0, t1=t1, dt0=dt0, y0=y0,
-        args=(p, levels, jump_ts), saveat=diffrax.SaveAt(ts=ts), stepsize_controller=controller,
-        max_steps=MAX_STEPS, throw=False)  # fmt: skip
-
-
 @functools.partial(jax.jit, static_argnames=("model", "lagged", "t1", "dt0", "rtol", "atol"))
-def _adaptive_lag_solve(y0, p, taus, levels, jump_ts, ts, *, model, lagged, t1, dt0, rtol, atol):
-    """:func:`_adaptive_solve` with the motors' lags as two more states: ``y`` (6,) ends
-    with the lagged voltages, ``tau du'/dt = u - u'`` on the axes of ``lagged`` (a pair of
-    bools; ``taus`` (2,) [s] their time constants), which the model's torques see."""
+def _adaptive_solve(y0, p, taus, levels, jump_ts, ts, *, model, lagged, t1, dt0, rtol, atol):
+    """The diffrax solve of :func:`reference_solve` (``jump_ts``: the switch times, maybe
+    none).  With a motor's lag (``lagged``, a pair of bools, not both False) ``y`` (6,) ends
+    with the lagged voltages, ``tau du'/dt = u - u'`` on the lagged axes (``taus`` (2,) [s]
+    their time constants), which the model's torques see; else ``y`` is the state (4,)."""
     mask = jnp.asarray(lagged)
 
     def field(t, y, args):
         p, taus, levels, jump_ts = args
         held = levels[jnp.searchsorted(jump_ts, t, side="right")]
+        if not any(lagged):
+            return model(t, y, (p, held))
         acting = jnp.where(mask, y[4:], held)
         rate = jnp.where(mask, (held - y[4:]) / jnp.where(mask, taus, 1.0), 0.0)
         return jnp.concatenate([model(t, y[:4], (p, acting)), rate])
@@ -125,11 +111,10 @@ def reference_solve(params: Mapping | None, x0, u, dt: float, *, model: HeliMode
     span = {"model": model, "t1": float(ts[-1]) if n > 1 else dt, "dt0": dt / 4, "rtol": rtol,
             "atol": atol}
     levels, jumps, ts = jnp.asarray(u[starts]), jnp.asarray(jumps), jnp.asarray(ts)
+    y0 = jnp.asarray(x0, dtype=jnp.float64)
     if any(lagged):  # the lagged voltages start at the first held voltage
-        y0 = jnp.concatenate([jnp.asarray(x0, dtype=jnp.float64), levels[0]])
-        sol = _adaptive_lag_solve(y0, p, jnp.asarray(taus), levels, jumps, ts, lagged=lagged, **span)
-    else:
-        sol = _adaptive_solve(jnp.asarray(x0, dtype=jnp.float64), p, levels, jumps, ts, **span)
+        y0 = jnp.concatenate([y0, levels[0]])
+    sol = _adaptive_solve(y0, p, jnp.asarray(taus), levels, jumps, ts, lagged=lagged, **span)
     ys = np.asarray(sol.ys)[:, :4]
     if not (sol.result == diffrax.RESULTS.successful) or not np.all(np.isfinite(ys)):
         raise ParameterError(f"reference solve failed ({sol.result}); the parameters make the "

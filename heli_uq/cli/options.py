@@ -136,7 +136,7 @@ def add_prior_options(p) -> None:
                    help="override one prior (repeatable): lognormal:MEDIAN:SIGMA_LOG, "
                         "halfnormal:SCALE, normal:MEAN:SD, uniform:LOW:HIGH; names are model "
                         "parameters, theta0, psi0, omega_theta0, omega_psi0, sigma_theta, "
-                        "sigma_psi, tau_theta, tau_psi")
+                        "sigma_psi, tau_theta, tau_psi, timing_theta, timing_psi")
     p.add_argument("--fix", action="append", metavar="NAME=VALUE",
                    help="fix a parameter (repeatable), e.g. --fix h=0")
 

@@ -18,7 +18,11 @@ from heli_uq.cli.options import (
 )
 from heli_uq.errors import ParameterError
 
-__all__ = ["add_parser", "cmd_sample"]
+__all__ = ["add_parser", "cmd_sample", "SAMPLE_ERROR_MODELS"]
+
+#: ``--error`` choices: :data:`heli_uq.probability.noise.ERROR_MODELS`, spelled out so that
+#: parsing the command line imports no JAX.
+SAMPLE_ERROR_MODELS = ("iid", "ar1", "iid+timing", "ar1+timing")
 
 
 def cmd_sample(args) -> int:
@@ -234,10 +238,11 @@ def add_parser(subparsers):
                         " their checks, up to N draws per chain (and --time-limit)")
     p.add_argument("--walkers", type=int, default=None,
                    help="emcee walkers per ensemble (default: 2 * dim + 2)")
-    p.add_argument("--error", choices=["iid", "ar1"], default="ar1",
+    p.add_argument("--error", choices=SAMPLE_ERROR_MODELS, default="ar1",
                    help="residual model per output (default: ar1, the conservative choice for"
                         " residuals correlated in time; 'heli-uq run' uses iid, which calibrates"
-                        " the rig record's pitch and keeps the yaw level honest; see README)")
+                        " the rig record's pitch and keeps the yaw level honest; '+timing' adds"
+                        " a timing error whose sd grows with the simulated rate; see README)")
     add_prior_options(p)
     p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     add_trust_options(p)

@@ -23,7 +23,11 @@ from heli_uq.errors import ParameterError
 from heli_uq.identifiability.structural import RANK_RTOL, ParameterVector
 from heli_uq.inference.levenberg import masked_least_squares
 from heli_uq.probability.likelihood import loss_v, whitened_residuals
-from heli_uq.probability.noise import ERROR_MODELS
+from heli_uq.probability.noise import ERROR_MODELS, error_parts
+
+#: The error models of the Fisher information: a constant scale (its Gauss-Newton form
+#: needs residual scales that do not depend on the parameters, which a timing error's do).
+FISHER_ERROR_MODELS = tuple(e for e in ERROR_MODELS if not error_parts(e)[1])
 
 __all__ = ["precision_draws", "WhitenedResiduals", "estimate_noise", "masked_least_squares", "LikelihoodFit",
            "fit_likelihood", "FisherResult", "fisher_information"]  # fmt: skip
@@ -91,8 +95,8 @@ class WhitenedResiduals(eqx.Module):
 
 def estimate_noise(resid: np.ndarray, error: str):
     """``(sigma, rho)`` of residuals of shape (N, 2): RMS and, for AR(1), lag-1 correlation."""
-    if error not in ERROR_MODELS:
-        raise ParameterError(f"error: expected one of {ERROR_MODELS}, found {error!r}")
+    if error not in FISHER_ERROR_MODELS:
+        raise ParameterError(f"error: expected one of {FISHER_ERROR_MODELS}, found {error!r}")
     sigma = np.maximum(np.sqrt(np.mean(resid**2, axis=0)), 1e-6)
     if error == "iid":
         return sigma, None

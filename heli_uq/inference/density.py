@@ -80,9 +80,11 @@ class LogDensity:
         return np.asarray(ravel_pytree({k: jnp.asarray(sites[k]) for k in template})[0])
 
 
-def init_sites(problem: Problem, params: dict, x0, sigma=(0.05, 0.05), tau=(0.5, 0.5)) -> dict:
+def init_sites(problem: Problem, params: dict, x0, sigma=(0.05, 0.05), tau=(0.5, 0.5),
+               timing=(0.2, 0.2)) -> dict:  # fmt: skip
     """Constrained site values for ``init_to_value``: coordinates of ``params``, the
-    initial state ``x0`` (4,), residual scales and correlation times (2,) each."""
+    initial state ``x0`` (4,), residual scales [rad], correlation times [s] and timing
+    errors [s] (2,) each."""
     coords = problem.coords
     z = jnp.asarray(coords.from_physical(params))
     values = {"z": z[1:] if coords.marginal_scale else z}
@@ -99,8 +101,10 @@ def init_sites(problem: Problem, params: dict, x0, sigma=(0.05, 0.05), tau=(0.5,
     for i, o in enumerate(OUTPUTS):
         if problem.priors.noise[f"sigma_{o}"].free:
             values[f"sigma_{o}"] = jnp.asarray(float(sigma[i]))
-        if problem.error == "ar1" and problem.priors.noise[f"tau_{o}"].free:
+        if problem.ar1 and problem.priors.noise[f"tau_{o}"].free:
             values[f"tau_{o}"] = jnp.asarray(float(tau[i]))
+        if problem.timing and problem.priors.noise[f"timing_{o}"].free:
+            values[f"timing_{o}"] = jnp.asarray(float(timing[i]))
     return values
 
 

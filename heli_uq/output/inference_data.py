@@ -3,7 +3,8 @@
 Groups:
 
 * ``posterior``: the model's free parameters by name (SI), the initial state, ``sigma``,
-  ``tau`` and ``rho`` per ``output``, the sampling coordinates ``z`` per ``coordinate``;
+  ``tau``, ``rho`` and ``timing`` per ``output`` (as the error model has them), the
+  sampling coordinates ``z`` per ``coordinate``;
   for a hybrid model also ``nn_torque_<axis>``, the network's output torque [N m] on the
   grid of :mod:`heli_uq.output.network` (dim ``nn_point_<axis>``, its inputs as coords;
   a network of the voltages also ``nn_torque_<axis>_unseen`` at the span's voltage pairs
@@ -56,7 +57,7 @@ from heli_uq.output.gp import gp_torques
 from heli_uq.output.network import UNSEEN, network_torques
 from heli_uq.probability.likelihood import pointwise_log_likelihood
 from heli_uq.probability.noise import ar1_noise
-from heli_uq.probability.priors import OUTPUTS
+from heli_uq.probability.priors import NOISE_KINDS, OUTPUTS
 
 __all__ = ["to_inference_data", "save_netcdf", "load_posterior", "OUTPUTS", "simulate_draws"]
 
@@ -73,8 +74,8 @@ PP_DRAWS = 200
 PREDICTIVE_RESOLUTION = 2.0**-16
 #: Draws simulated at once.
 SIM_BATCH = 128
-#: Sampled sites that duplicate a per-output vector (``sigma``, ``tau``) in the posterior.
-_SCALAR_NOISE = tuple(f"{k}_{o}" for k in ("sigma", "tau") for o in OUTPUTS)
+#: Sampled sites that duplicate a per-output vector (``sigma``, ``tau``, ``timing``).
+_SCALAR_NOISE = tuple(f"{k}_{o}" for k in NOISE_KINDS for o in OUTPUTS)
 
 
 def _thin_index(n: int, keep: int) -> np.ndarray:
@@ -82,7 +83,8 @@ def _thin_index(n: int, keep: int) -> np.ndarray:
 
 
 def _draw_inputs(problem, samples: dict, flat_index: np.ndarray):
-    """``(params, x0, sigma, rho)`` of the flat draws ``flat_index`` (chain-major)."""
+    """``(params, x0, errors)`` of the flat draws ``flat_index`` (chain-major); ``errors``
+    maps ``sigma`` and, as the error model has them, ``rho`` and ``timing`` to (S, 2)."""
 
     def pick(v):
         return np.asarray(v).reshape((-1,) + np.shape(v)[2:])[flat_index]
@@ -92,9 +94,12 @@ def _draw_inputs(problem, samples: dict, flat_index: np.ndarray):
         prior = problem.priors.params[par.name]
         params[par.name] = pick(samples[par.name]) if prior.free else np.full(flat_index.size, prior.a)
     x0 = np.column_stack([pick(samples[n]) for n in X0_NAMES])
-    sigma = pick(samples["sigma"])
-    rho = pick(samples["rho"]) if problem.error == "ar1" else None
-    return params, x0, sigma, rho
+    errors = {"sigma": pick(samples["sigma"])}
+    if problem.ar1:
+        errors["rho"] = pick(samples["rho"])
+    if problem.timing:
+        errors["timing"] = pick(samples["timing"])
+    return params, x0, errors
 
 
 def simulate_draws(problem, samples: dict, flat_index: np.ndarray, *, seed: int = 0,
@@ -112,14 +117,17 @@ def simulate_draws(problem, samples: dict, flat_index: np.ndarray, *, seed: int 
     y_train = jnp.asarray(problem.y[:n_train])
 
     @jax.jit
-    def one(params, x0, sigma, rho, key):
+    def one(params, x0, errors, key):
         sol = problem.solve(params, x0)
         sim = jnp.where(sol.ok, sol.ys[:, :2], jnp.nan)
-        ll = pointwise_log_likelihood(sim[:n_train], y_train, sigma, rho)
+        sigma, rho, timing = errors["sigma"], errors.get("rho"), errors.get("timing")
+        rate = jnp.where(sol.ok, sol.ys[:, 2:4], 0.0) if timing is not None else None
+        ll = pointwise_log_likelihood(sim[:n_train], y_train, sigma, rho, timing,
+                                      None if rate is None else rate[:n_train])  # fmt: skip
         ll = jnp.where(sol.ok, ll, -jnp.inf)[: n_blocks * block].reshape(n_blocks, block, 2).sum(1)
-        return ll, sim, sim + ar1_noise(key, n, sigma, rho)
+        return ll, sim, sim + ar1_noise(key, n, sigma, rho, timing, rate)
 
-    batched = jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0 if problem.error == "ar1" else None, 0)))
+    batched = jax.jit(jax.vmap(one))
     keys = jax.random.split(jax.random.PRNGKey(seed), flat_index.size)
     size = min(SIM_BATCH, flat_index.size)  # one compiled batch shape
     out_ll, out_sim, out_pred = [], [], []
@@ -127,9 +135,9 @@ def simulate_draws(problem, samples: dict, flat_index: np.ndarray, *, seed: int 
         idx = flat_index[i : i + size]
         pad = size - idx.size
         full = np.concatenate([idx, np.repeat(idx[-1:], pad)]) if pad else idx
-        params, x0, sigma, rho = _draw_inputs(problem, samples, full)
+        params, x0, errors = _draw_inputs(problem, samples, full)
         ll, sim, pred = batched({k: jnp.asarray(v) for k, v in params.items()}, jnp.asarray(x0),
-                                jnp.asarray(sigma), None if rho is None else jnp.asarray(rho),
+                                {k: jnp.asarray(v) for k, v in errors.items()},
                                 keys[i : i + size] if not pad else
                                 jnp.concatenate([keys[i:], jnp.repeat(keys[-1:], pad, 0)]))  # fmt: skip
         keep = size - pad
@@ -165,7 +173,8 @@ def to_inference_data(run, *, prior_draws: int = 500, seed: int = 0, pp_draws: i
     n_train = problem.n_train
     coords = {"output": list(OUTPUTS), "coordinate": list(problem.coords.sampled_names),
               "time": problem.t, "time_train": problem.t[:n_train]}  # fmt: skip
-    dims = {"sigma": ["output"], "rho": ["output"], "tau": ["output"], "z": ["coordinate"],
+    dims = {"sigma": ["output"], "rho": ["output"], "tau": ["output"], "timing": ["output"],
+            "z": ["coordinate"],
             "u": ["time", "input"], "y_obs": ["time", "output"], "train_mask": ["time"],
             "test_mask": ["time"], "y": ["time_train", "output"]}  # fmt: skip
     stats = {k: np.asarray(v) for k, v in run.stats.items()}

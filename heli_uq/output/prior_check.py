@@ -75,16 +75,20 @@ def prior_draws(problem, n: int, seed: int = 0) -> dict:
     it, :meth:`~heli_uq.probability.Problem.draw_parameters`), in the layout of a sampler's
     samples with one chain: ``{parameter: (1, n)}`` for every free model parameter,
     ``{theta0, psi0, omega_theta0, omega_psi0: (1, n)}``, ``sigma`` (1, n, 2) [rad] and,
-    for AR(1) errors, ``tau`` [s] and ``rho`` (1, n, 2)."""
+    for AR(1) errors, ``tau`` [s] and ``rho`` (1, n, 2); with a timing error ``timing``
+    [s] (1, n, 2)."""
     rng = np.random.default_rng(seed)
     priors: PriorSet = problem.priors
     out = problem.draw_parameters(rng, (1, n))
     for name, prior in zip(X0_NAMES, problem.x0_priors()):
         out[name] = prior.sample(rng, (1, n))
     out["sigma"] = np.stack([priors.noise[f"sigma_{o}"].sample(rng, (1, n)) for o in OUTPUTS], axis=-1)
-    if problem.error == "ar1":
+    if problem.ar1:
         out["tau"] = np.stack([priors.noise[f"tau_{o}"].sample(rng, (1, n)) for o in OUTPUTS], axis=-1)
         out["rho"] = np.exp(-problem.dt / out["tau"])
+    if problem.timing:
+        out["timing"] = np.stack([priors.noise[f"timing_{o}"].sample(rng, (1, n)) for o in OUTPUTS],
+                                 axis=-1)  # fmt: skip
     return out
 
 
@@ -211,7 +215,8 @@ def prior_predictive_check(record: Experiment, out_dir, *, model: HeliModel | No
         coords={"time": problem.t, "time_train": problem.t[: problem.n_train], "output": list(OUTPUTS),
                 "input": ["u_theta", "u_psi"]},
         dims={"y_pred": ["time", "output"], "y_sim": ["time", "output"], "sigma": ["output"],
-              "tau": ["output"], "rho": ["output"], "y": ["time_train", "output"], "u": ["time", "input"],
+              "tau": ["output"], "rho": ["output"], "timing": ["output"],
+              "y": ["time_train", "output"], "u": ["time", "input"],
               "y_obs": ["time", "output"], "train_mask": ["time"], "test_mask": ["time"]},
     )  # fmt: skip
     idata.prior.attrs.update({"model": json.dumps(problem.model.describe()),

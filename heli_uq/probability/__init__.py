@@ -11,6 +11,7 @@ from heli_uq.probability.likelihood import pointwise_log_likelihood as pointwise
 from heli_uq.probability.likelihood import whitened_residuals as whitened_residuals
 from heli_uq.probability.noise import ERROR_MODELS as ERROR_MODELS
 from heli_uq.probability.noise import ar1_noise as ar1_noise
+from heli_uq.probability.noise import marginal_sd as marginal_sd
 from heli_uq.probability.numpyro_model import heli_model as heli_model
 from heli_uq.probability.priors import PriorSet as PriorSet
 from heli_uq.probability.priors import load_priors_json as load_priors_json
@@ -20,5 +21,5 @@ from heli_uq.probability.problem import check_split as check_split
 from heli_uq.probability.problem import make_problem as make_problem
 
 __all__ = ["Coordinates", "log_likelihood", "loss_v", "pointwise_log_likelihood",
-           "whitened_residuals", "ERROR_MODELS", "ar1_noise", "heli_model", "PriorSet",
+           "whitened_residuals", "ERROR_MODELS", "ar1_noise", "marginal_sd", "heli_model", "PriorSet",
            "load_priors_json", "parse_prior_option", "Problem", "check_split", "make_problem"]  # fmt: skip

@@ -6,8 +6,9 @@ maximum-likelihood fit and Fisher information of the identifiability report, and
 pointwise log likelihood stored in the results.
 
 Given simulated angles ``sim`` and measured ``y`` (both (N, 2) [rad]) and the error model
-(:mod:`heli_uq.probability.noise`: residual sd ``sigma`` (2,) and, for AR(1), ``rho``
-(2,)), the log density factorises into one-step-ahead conditionals
+(:mod:`heli_uq.probability.noise`: residual sd ``sigma`` (2,), for AR(1) ``rho`` (2,),
+and for a timing error its sd ``timing`` (2,) [s] with the simulated rates ``rate`` (N, 2)
+[rad/s]), the log density factorises into one-step-ahead conditionals
 ``y_k | y_{k-1} ~ N(loc_k, scale_k)``, so
 
 * :func:`whitened_residuals` are ``(y - loc) / scale`` (the least-squares residuals),
@@ -38,19 +39,19 @@ def loss_v(ys, y_data):
     return jnp.mean(jnp.sum(r * r, axis=1))
 
 
-def whitened_residuals(sim, y, sigma, rho=None):
+def whitened_residuals(sim, y, sigma, rho=None, timing=None, rate=None):
     """``(y_k - E[y_k | y_{k-1}]) / sd_k``, shape (N, 2), under the error model."""
-    loc, scale = conditional_moments(sim, y, sigma, rho)
+    loc, scale = conditional_moments(sim, y, sigma, rho, timing, rate)
     return (y - loc) / scale
 
 
-def pointwise_log_likelihood(sim, y, sigma, rho=None):
+def pointwise_log_likelihood(sim, y, sigma, rho=None, timing=None, rate=None):
     """Log density of each observation given the past, shape (N, 2); sums to the joint."""
-    loc, scale = conditional_moments(sim, y, sigma, rho)
+    loc, scale = conditional_moments(sim, y, sigma, rho, timing, rate)
     r = (y - loc) / scale
     return -0.5 * r * r - jnp.log(scale) - 0.5 * jnp.log(2.0 * jnp.pi)
 
 
-def log_likelihood(sim, y, sigma, rho=None):
+def log_likelihood(sim, y, sigma, rho=None, timing=None, rate=None):
     """The log likelihood of the measured angles ``y`` (N, 2) given ``sim`` (N, 2)."""
-    return jnp.sum(pointwise_log_likelihood(sim, y, sigma, rho))
+    return jnp.sum(pointwise_log_likelihood(sim, y, sigma, rho, timing, rate))

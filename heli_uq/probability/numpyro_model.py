@@ -8,8 +8,9 @@
 * the initial state ``theta0, psi0, omega_theta0, omega_psi0``; in identifiable
   coordinates a free initial yaw rate is sampled as its angular momentum over the yaw
   ratios' inertia, ``p_psi0_ratio`` (below), and ``omega_psi0`` is deterministic;
-* the error model: ``sigma_theta, sigma_psi`` and, for AR(1), ``tau_theta, tau_psi``
-  with ``rho = exp(-dt / tau)`` (deterministic ``sigma``, ``tau``, ``rho`` per output);
+* the error model: ``sigma_theta, sigma_psi``; for AR(1) ``tau_theta, tau_psi`` with
+  ``rho = exp(-dt / tau)``; with a timing error ``timing_theta, timing_psi``
+  (deterministic ``sigma``, ``tau``, ``rho``, ``timing`` per output);
 * deterministic physical parameters by name.
 
 ``mode="fit"`` (default, ``y`` given): one simulation of the training window and the
@@ -87,6 +88,12 @@ def _initial_yaw_rate(coords, phys, theta0, loc, scale):
     return numpyro.deterministic("omega_psi0", omega)
 
 
+def _per_output(problem: Problem, kind: str):
+    """The error-model parameter ``kind`` (``sigma``, ``tau``, ``timing``) of each output,
+    shape (2,): sites ``{kind}_theta, {kind}_psi``."""
+    return jnp.stack([_scalar_site(f"{kind}_{o}", problem.priors.noise[f"{kind}_{o}"]) for o in OUTPUTS])
+
+
 def heli_model(problem: Problem, y=None, mode: str = "fit"):
     """numpyro model of a record (module docstring)."""
     coords = problem.coords
@@ -109,13 +116,13 @@ def heli_model(problem: Problem, y=None, mode: str = "fit"):
         else:
             x0.append(_scalar_site(n, p, x0_loc[i], x0_scale[i]))
     x0 = jnp.stack(x0)
-    sigma = numpyro.deterministic("sigma", jnp.stack(
-        [_scalar_site(f"sigma_{o}", problem.priors.noise[f"sigma_{o}"]) for o in OUTPUTS]))
-    rho = None
-    if problem.error == "ar1":
-        tau = numpyro.deterministic("tau", jnp.stack(
-            [_scalar_site(f"tau_{o}", problem.priors.noise[f"tau_{o}"]) for o in OUTPUTS]))
+    sigma = numpyro.deterministic("sigma", _per_output(problem, "sigma"))
+    rho = timing = None
+    if problem.ar1:
+        tau = numpyro.deterministic("tau", _per_output(problem, "tau"))
         rho = numpyro.deterministic("rho", jnp.exp(-problem.dt / tau))
+    if problem.timing:
+        timing = numpyro.deterministic("timing", _per_output(problem, "timing"))
     if mode == "params":
         return
     n = problem.n_train if mode == "fit" else None
@@ -124,9 +131,10 @@ def heli_model(problem: Problem, y=None, mode: str = "fit"):
     # A failed solve is a rejected proposal: -inf log density, finite placeholders.
     numpyro.factor("solver_ok", jnp.where(ok, 0.0, -jnp.inf))
     sim = jnp.where(ok, sol.ys[:, :2], 0.0)
+    rate = jnp.where(ok, sol.ys[:, 2:4], 0.0) if problem.timing else None
     if mode == "predict":
-        noise = ar1_noise(numpyro.prng_key(), sim.shape[0], sigma, rho)
+        noise = ar1_noise(numpyro.prng_key(), sim.shape[0], sigma, rho, timing, rate)
         numpyro.deterministic("y_pred", sim + noise)
         numpyro.deterministic("y_sim", sim)
         return
-    numpyro.factor("log_likelihood", log_likelihood(sim, y, sigma, rho))
+    numpyro.factor("log_likelihood", log_likelihood(sim, y, sigma, rho, timing, rate))

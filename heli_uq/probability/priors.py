@@ -24,6 +24,10 @@ tau_theta, tau_psi (AR(1))  log-normal(0.5 s, 1.0)       correlation time of the
                                                          tau (not a flat one on rho) keeps
                                                          the AR(1) from turning a misfit
                                                          into a random walk (rho -> 1)
+timing_theta, timing_psi    log-normal(0.2 s, 1.5)       sd of the simulation's timing error
+(with a timing error)                                    (:mod:`heli_uq.probability.noise`):
+                                                         from 0.01 s (a model that keeps
+                                                         time) to 4 s (one that does not)
 ==========================  ===========================  ===================================
 
 The record fixes only ratios of the inertia-scaled parameters, so the samplers' prior
@@ -74,7 +78,8 @@ from heli_uq.model.prior import Prior, parse_prior_text, prior_from_json
 from heli_uq.model.tables import X0_NAMES
 
 __all__ = ["PriorSet", "RecordStart", "fixed_values", "X0_ANGLE_SD", "X0_RATE_SD", "X0_RATE_FLOOR",
-           "SIGMA_PRIOR", "TAU_PRIOR", "OUTPUTS", "parse_prior_option", "load_priors_json"]  # fmt: skip
+           "SIGMA_PRIOR", "TAU_PRIOR", "TIMING_PRIOR", "NOISE_KINDS", "OUTPUTS",
+           "parse_prior_option", "load_priors_json"]  # fmt: skip
 
 X0_ANGLE_SD = 0.05  # rad
 X0_RATE_SD = 0.2  # rad/s, the initial rates' prior before the record's first second
@@ -83,8 +88,12 @@ X0_RATE_SD = 0.2  # rad/s, the initial rates' prior before the record's first se
 X0_RATE_FLOOR = 0.01
 SIGMA_PRIOR = Prior("lognormal", 0.05, 1.5)  # residual scale per output [rad]
 TAU_PRIOR = Prior("lognormal", 0.5, 1.0)  # AR(1) correlation time per output [s]
+TIMING_PRIOR = Prior("lognormal", 0.2, 1.5)  # timing error's sd per output [s]
 OUTPUTS = ("theta", "psi")
-_NOISE_NAMES = tuple(f"sigma_{o}" for o in OUTPUTS) + tuple(f"tau_{o}" for o in OUTPUTS)
+#: The error model's parameters, each per output: residual scale, AR(1) correlation time,
+#: timing error (:mod:`heli_uq.probability.noise`).
+NOISE_KINDS = ("sigma", "tau", "timing")
+_NOISE_NAMES = tuple(f"{k}_{o}" for k in NOISE_KINDS for o in OUTPUTS)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,7 +150,7 @@ class PriorSet:
         normal(0, :data:`X0_RATE_SD`), updated where the record starts still with its
         measured initial rate, :meth:`RecordStart.rate_prior`).
     noise : dict of str to Prior
-        ``sigma_theta, sigma_psi, tau_theta, tau_psi``.
+        ``sigma_theta, sigma_psi, tau_theta, tau_psi, timing_theta, timing_psi``.
     """
 
     params: dict
@@ -153,7 +162,8 @@ class PriorSet:
         """Every term's declared prior, the default initial-state and error priors."""
         return cls({p.name: p.prior for p in model.parameters()}, {n: None for n in X0_NAMES},
                    {**{f"sigma_{o}": SIGMA_PRIOR for o in OUTPUTS},
-                    **{f"tau_{o}": TAU_PRIOR for o in OUTPUTS}})  # fmt: skip
+                    **{f"tau_{o}": TAU_PRIOR for o in OUTPUTS},
+                    **{f"timing_{o}": TIMING_PRIOR for o in OUTPUTS}})  # fmt: skip
 
     @property
     def names(self) -> tuple[str, ...]:

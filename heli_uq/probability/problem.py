@@ -16,7 +16,7 @@ from heli_uq.errors import ParameterError
 from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.probability.coordinates import Coordinates
-from heli_uq.probability.noise import ERROR_MODELS
+from heli_uq.probability.noise import ERROR_MODELS, error_parts
 from heli_uq.probability.priors import PriorSet, RecordStart
 from heli_uq.simulation.solver import solve
 from heli_uq.simulation.stiffness import default_substeps
@@ -46,7 +46,8 @@ class Problem:
         ``(start, stop)`` sample indices of the held-out test window, if any.
     priors : PriorSet
     coords : Coordinates
-    error : {"iid", "ar1"}
+    error : {"iid", "ar1", "iid+timing", "ar1+timing"}
+        The error model (:mod:`heli_uq.probability.noise`).
     substeps : int
         RK4 substeps per sample of every simulation.
     source : str
@@ -64,6 +65,16 @@ class Problem:
     error: str = "ar1"
     substeps: int = 1
     source: str = ""
+
+    @property
+    def ar1(self) -> bool:
+        """Whether the residuals are AR(1) (else independent)."""
+        return error_parts(self.error)[0]
+
+    @property
+    def timing(self) -> bool:
+        """Whether the error model has a timing error (:mod:`heli_uq.probability.noise`)."""
+        return error_parts(self.error)[1]
 
     @property
     def record_start(self) -> RecordStart:
@@ -145,7 +156,8 @@ def make_problem(record: Experiment, train=None, test=None, *, model: HeliModel 
         Default: the paper's model.
     priors : PriorSet, optional
         Default: :meth:`PriorSet.default` of the model.
-    error : {"iid", "ar1"}
+    error : {"iid", "ar1", "iid+timing", "ar1+timing"}
+        The error model (:mod:`heli_uq.probability.noise`).
     strategy : {"auto", "identifiable", "log"}
         Sampling coordinates (:class:`~heli_uq.probability.Coordinates`).
     substeps : int, optional

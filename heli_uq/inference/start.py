@@ -39,6 +39,7 @@ import numpy as np
 
 from heli_uq.errors import ParameterError
 from heli_uq.inference.density import LogDensity, constrain_draws, init_sites, log_density_setup
+from heli_uq.inference.error_start import MIN_SIGMA, error_start
 from heli_uq.inference.gaussian import gaussian_draws
 from heli_uq.inference.least_squares import grid_start, least_squares_fit, x0_guess
 from heli_uq.inference.map import NEWTON_STEPS, find_map, laplace, leave_saddles, newton_polish
@@ -55,7 +56,7 @@ from heli_uq.simulation.stiffness import (
 
 __all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "startable", "initial_draws",
            "whitening", "TAIL_DRAWS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
-           "NETWORK_MAP_DECREMENT_MAX", "PoorBasin", "timing_start"]  # fmt: skip
+           "NETWORK_MAP_DECREMENT_MAX", "PoorBasin"]  # fmt: skip
 
 #: Laplace draws (seeded) whose stiffness the substeps must cover (their maximum is about
 #: the 99.8 % quantile of the rate).  The output stage checks every posterior draw again
@@ -159,9 +160,11 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
                                      linear=linear)[: max(n - len(warm), 0)]  # fmt: skip
     screened = grid_start(problem, starts[0], log=log)
     starts += [screened] if screened is not None else []
+    y = problem.y[: problem.n_train]
     for k, params in enumerate(starts):
         z, x0, cost = (np.asarray(a) for a in fit(coords.from_physical(params), x0_guess(problem)))
-        resid = np.asarray(sim(jnp.asarray(z), jnp.asarray(x0)))[:, :2] - problem.y[: problem.n_train]
+        states = np.asarray(sim(jnp.asarray(z), jnp.asarray(x0)))
+        resid = states[:, :2] - y
         usable = bool(np.all(np.isfinite(resid)))
         if log is not None:
             log(f"MAP start {k + 1}/{len(starts)}: least-squares cost {float(cost):.6g} "
@@ -170,18 +173,12 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
         if not usable:
             continue
         # again with the residual scales of this fit (the MAP's weighting of theta vs psi)
-        sigma = np.maximum(np.sqrt(np.mean(resid**2, axis=0)), 1e-4)
+        sigma = np.maximum(np.sqrt(np.mean(resid**2, axis=0)), MIN_SIGMA)
         z2, x2, _ = (np.asarray(a) for a in fit(z, x0, sigma))
-        resid2 = np.asarray(sim(jnp.asarray(z2), jnp.asarray(x2)))[:, :2] - problem.y[: problem.n_train]
-        if np.all(np.isfinite(resid2)):
-            z, x0, resid = z2, x2, resid2
-        sigma = np.maximum(np.sqrt(np.mean(resid**2, axis=0)), 1e-4)
-        lag1 = np.sum(resid[1:] * resid[:-1], axis=0) / np.sum(resid**2, axis=0)
-        tau = -problem.dt / np.log(np.clip(lag1, 0.01, 0.9999))
-        timing = (0.2, 0.2)
-        if problem.timing:
-            rate = np.asarray(sim(jnp.asarray(z), jnp.asarray(x0)))[:, 2:4]
-            sigma, timing = timing_start(resid, rate)
+        states2 = np.asarray(sim(jnp.asarray(z2), jnp.asarray(x2)))
+        if np.all(np.isfinite(states2[:, :2])):
+            z, x0, states = z2, x2, states2
+        sigma, tau, timing = error_start(states[:, :2] - y, states[:, 2:4], problem.dt, problem.timing)
         phys = {k: float(v) for k, v in coords.to_physical(jnp.asarray(z)).items()}
         sites = init_sites(problem, phys, x0, sigma, tau, timing)
         # numpyro's unconstrained space: log of the positive sites
@@ -189,28 +186,6 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
                          for k, v in sites.items()}  # fmt: skip
         out.append(density.ravel(unconstrained))
     return out
-
-
-#: Grids of the timing error's start [s] and of the residual scale's, as fractions of the
-#: residual RMS (:func:`timing_start`).
-TIMING_GRID = np.geomspace(0.01, 4.0, 25)
-SIGMA_FRACTIONS = np.geomspace(0.01, 1.0, 41)
-
-
-def timing_start(resid, rate):
-    """``(sigma, timing)`` (2,) each: the residual scale [rad] and timing error [s] that
-    maximise the independent-error likelihood of ``resid`` (N, 2) [rad] with the simulated
-    rates ``rate`` (N, 2) [rad/s] over :data:`TIMING_GRID` x :data:`SIGMA_FRACTIONS`,
-    the MAP's start (:mod:`heli_uq.probability.noise`)."""
-    rms = np.maximum(np.sqrt(np.mean(resid**2, axis=0)), 1e-4)
-    sigma, timing = rms.copy(), np.full(2, TIMING_GRID[0])
-    for j in range(2):
-        s_grid = rms[j] * SIGMA_FRACTIONS
-        var = s_grid[:, None, None] ** 2 + (TIMING_GRID[None, :, None] * rate[None, None, :, j]) ** 2
-        nll = 0.5 * np.sum(resid[None, None, :, j] ** 2 / var + np.log(var), axis=-1)
-        a, b = np.unravel_index(np.argmin(nll), nll.shape)
-        sigma[j], timing[j] = s_grid[a], TIMING_GRID[b]
-    return sigma, timing
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

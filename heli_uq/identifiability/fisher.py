@@ -25,12 +25,12 @@ from heli_uq.inference.levenberg import masked_least_squares
 from heli_uq.probability.likelihood import loss_v, whitened_residuals
 from heli_uq.probability.noise import ERROR_MODELS, error_parts
 
+__all__ = ["precision_draws", "WhitenedResiduals", "estimate_noise", "masked_least_squares", "LikelihoodFit",
+           "fit_likelihood", "FisherResult", "fisher_information"]  # fmt: skip
+
 #: The error models of the Fisher information: a constant scale (its Gauss-Newton form
 #: needs residual scales that do not depend on the parameters, which a timing error's do).
 FISHER_ERROR_MODELS = tuple(e for e in ERROR_MODELS if not error_parts(e)[1])
-
-__all__ = ["precision_draws", "WhitenedResiduals", "estimate_noise", "masked_least_squares", "LikelihoodFit",
-           "fit_likelihood", "FisherResult", "fisher_information"]  # fmt: skip
 
 #: Residual scales [rad] (theta, psi) of the first least-squares stage, before the noise is estimated.
 INITIAL_SIGMA = (0.02, 0.1)

@@ -39,7 +39,7 @@ import numpy as np
 
 from heli_uq.errors import ParameterError
 from heli_uq.inference.density import LogDensity, constrain_draws, init_sites, log_density_setup
-from heli_uq.inference.error_start import MIN_SIGMA, error_start
+from heli_uq.inference.error_start import error_start, residual_rms
 from heli_uq.inference.gaussian import gaussian_draws
 from heli_uq.inference.least_squares import grid_start, least_squares_fit, x0_guess
 from heli_uq.inference.map import NEWTON_STEPS, find_map, laplace, leave_saddles, newton_polish
@@ -173,7 +173,7 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
         if not usable:
             continue
         # again with the residual scales of this fit (the MAP's weighting of theta vs psi)
-        sigma = np.maximum(np.sqrt(np.mean(resid**2, axis=0)), MIN_SIGMA)
+        sigma = residual_rms(resid)
         z2, x2, _ = (np.asarray(a) for a in fit(z, x0, sigma))
         states2 = np.asarray(sim(jnp.asarray(z2), jnp.asarray(x2)))
         if np.all(np.isfinite(states2[:, :2])):

@@ -82,13 +82,16 @@ def prior_draws(problem, n: int, seed: int = 0) -> dict:
     out = problem.draw_parameters(rng, (1, n))
     for name, prior in zip(X0_NAMES, problem.x0_priors()):
         out[name] = prior.sample(rng, (1, n))
-    out["sigma"] = np.stack([priors.noise[f"sigma_{o}"].sample(rng, (1, n)) for o in OUTPUTS], axis=-1)
+
+    def per_output(kind):  # (1, n, 2) draws of the error-model parameter ``kind``
+        return np.stack([priors.noise[f"{kind}_{o}"].sample(rng, (1, n)) for o in OUTPUTS], axis=-1)
+
+    out["sigma"] = per_output("sigma")
     if problem.ar1:
-        out["tau"] = np.stack([priors.noise[f"tau_{o}"].sample(rng, (1, n)) for o in OUTPUTS], axis=-1)
+        out["tau"] = per_output("tau")
         out["rho"] = np.exp(-problem.dt / out["tau"])
     if problem.timing:
-        out["timing"] = np.stack([priors.noise[f"timing_{o}"].sample(rng, (1, n)) for o in OUTPUTS],
-                                 axis=-1)  # fmt: skip
+        out["timing"] = per_output("timing")
     return out
 
 

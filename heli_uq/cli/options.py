@@ -40,6 +40,8 @@ def _effects_help() -> str:
                  "times (1 - a (1 - cos theta)); a [1] in [0, 2], 1 = the geometry's cos theta")
     lines.append("  motor_lag          a motor's thrust lags its voltage: tau du'/dt = u - u', tau [s] "
                  "(0 = none); the axis names the motor, as for deadband")
+    lines.append("  input_delay        a motor acts on its voltage late: u'(t) = u(t - d), d [s] "
+                 "(0 = none); the axis names the motor, as for deadband")
     lines.append("  neural_torque      hybrid model: a tanh network torque of the voltages (weights "
                  "nn_W_*, nn_b_*, nn_w_* [N m]); options inputs (u | u,x,v) and hidden in a "
                  "model file")

@@ -68,7 +68,7 @@ class HeliModel(eqx.Module):
         adapted = [t.label for t in self.terms if t.record_keys]
         if self.filters_voltages and adapted:
             raise ParameterError(f"model: {', '.join(adapted)} is set up on the recorded voltages, "
-                                 "which a motor lag changes; use one or the other")  # fmt: skip
+                                 "which a motor lag or dead time changes; use one or the other")  # fmt: skip
         for term in self.terms:
             missing = [name for name in term.reads() if name not in seen]
             if missing:
@@ -222,7 +222,7 @@ class HeliModel(eqx.Module):
 
     @property
     def filters_voltages(self) -> bool:
-        """True if an input map acts on the voltage sequence (a motor's lag)."""
+        """True if an input map acts on the voltage sequence (a motor's lag or dead time)."""
         return any(t.filters_sequence for t in self.inputs)
 
     def filtered_voltages(self, p, u, h):

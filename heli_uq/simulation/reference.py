@@ -8,7 +8,9 @@ friction) raise.  :func:`reference_solve` integrates the same vector field
 given as a jump time, so each constant-input stretch is integrated on its own: the
 independent form against which :func:`solver_error` measures the fixed-step solution.
 A motor's lag (:mod:`heli_uq.model.terms.motor_lag`), which the fixed-step solver
-applies exactly to the held voltages of each step, is integrated here as two more states.
+applies exactly to the held voltages of each step, is integrated here as two more states,
+and a motor's dead time (:mod:`heli_uq.model.terms.input_delay`), which it applies as step
+means, as the voltage read ``d`` late, with the delayed switches as jump times.
 """
 
 from __future__ import annotations
@@ -40,17 +42,27 @@ def _switch_times(u: np.ndarray, dt: float) -> np.ndarray:
     return change * dt
 
 
+#: A delayed voltage is read at ``t - d +`` this [s], so that a step that starts just after a
+#: delayed switch (diffrax starts it at ``nextafter``) reads the new voltage despite rounding.
+READ_AFTER = 1e-9
+
+
 @functools.partial(jax.jit, static_argnames=("model", "lagged", "t1", "dt0", "rtol", "atol"))
-def _adaptive_solve(y0, p, taus, levels, jump_ts, ts, *, model, lagged, t1, dt0, rtol, atol):
-    """The diffrax solve of :func:`reference_solve` (``jump_ts``: the switch times, maybe
-    none).  With a motor's lag (``lagged``, a pair of bools, not both False) ``y`` (6,) ends
-    with the lagged voltages, ``tau du'/dt = u - u'`` on the lagged axes (``taus`` (2,) [s]
-    their time constants), which the model's torques see; else ``y`` is the state (4,)."""
+def _adaptive_solve(y0, p, taus, delays, levels, switch_ts, jump_ts, ts, *, model, lagged, t1, dt0,
+                    rtol, atol):  # fmt: skip
+    """The diffrax solve of :func:`reference_solve` (``switch_ts``: the switch times of
+    ``levels``, maybe none; ``jump_ts``: those and the delayed ones).  Motor ``i`` reads its
+    voltage ``delays[i]`` [s] late.  With a motor's lag (``lagged``, a pair of bools, not
+    both False) ``y`` (6,) ends with the lagged voltages, ``tau du'/dt = u - u'`` on the
+    lagged axes (``taus`` (2,) [s] their time constants), which the model's torques see;
+    else ``y`` is the state (4,)."""
     mask = jnp.asarray(lagged)
 
     def field(t, y, args):
-        p, taus, levels, jump_ts = args
-        held = levels[jnp.searchsorted(jump_ts, t, side="right")]
+        p, taus, delays, levels, switch_ts = args
+        at = jnp.searchsorted(switch_ts, t - delays + jnp.where(delays > 0, READ_AFTER, 0.0),
+                              side="right")  # fmt: skip
+        held = levels[at, jnp.arange(2)]
         if not any(lagged):
             return model(t, y, (p, held))
         acting = jnp.where(mask, y[4:], held)
@@ -61,20 +73,24 @@ def _adaptive_solve(y0, p, taus, levels, jump_ts, ts, *, model, lagged, t1, dt0,
                                        jump_ts=jump_ts if jump_ts.shape[0] else None)  # fmt: skip
     return diffrax.diffeqsolve(
         diffrax.ODETerm(field), diffrax.Kvaerno5(), t0=0.0, t1=t1, dt0=dt0, y0=y0,
-        args=(p, taus, levels, jump_ts), saveat=diffrax.SaveAt(ts=ts),
+        args=(p, taus, delays, levels, switch_ts), saveat=diffrax.SaveAt(ts=ts),
         stepsize_controller=controller, max_steps=MAX_STEPS, throw=False)  # fmt: skip
 
 
-def _lags(model: HeliModel, p) -> tuple[tuple[bool, bool], np.ndarray]:
-    """Which motors lag (time constant above the floor) and their time constants [s]."""
-    taus = np.ones(2)
+def _lags(model: HeliModel, p) -> tuple[tuple[bool, bool], np.ndarray, np.ndarray]:
+    """Which motors lag (time constant above the floor), their time constants [s] and
+    every motor's dead time [s] (0 without one)."""
+    taus, delays = np.ones(2), np.zeros(2)
     lagged = [False, False]
     for term in model.inputs:
-        if term.filters_sequence:
+        if hasattr(term, "time_constant"):
             i, tau = term.time_constant(p)
             if float(tau) > TAU_FLOOR:
                 lagged[i], taus[i] = True, float(tau)
-    return tuple(lagged), taus
+        if hasattr(term, "delay"):
+            i, d = term.delay(p)
+            delays[i] = max(float(d), 0.0)
+    return tuple(lagged), taus, delays
 
 
 def reference_solve(params: Mapping | None, x0, u, dt: float, *, model: HeliModel | None = None,
@@ -106,15 +122,18 @@ def reference_solve(params: Mapping | None, x0, u, dt: float, *, model: HeliMode
     starts = np.concatenate([[0], np.flatnonzero(np.any(u[1:] != u[:-1], axis=1)) + 1])
     # parameters, levels and switch times are arguments of one compiled solve per model,
     # record shape and tolerances (closed over, each parameter set compiled anew)
-    lagged, taus = _lags(model, p)
+    lagged, taus, delays = _lags(model, p)
     p = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in p.items()}
     span = {"model": model, "t1": float(ts[-1]) if n > 1 else dt, "dt0": dt / 4, "rtol": rtol,
             "atol": atol}
-    levels, jumps, ts = jnp.asarray(u[starts]), jnp.asarray(jumps), jnp.asarray(ts)
+    shifted = np.unique(np.concatenate([jumps + d for d in set(delays.tolist())]))  # with d = 0
+    shifted = shifted[shifted < span["t1"]]
+    levels, ts = jnp.asarray(u[starts]), jnp.asarray(ts)
     y0 = jnp.asarray(x0, dtype=jnp.float64)
     if any(lagged):  # the lagged voltages start at the first held voltage
         y0 = jnp.concatenate([y0, levels[0]])
-    sol = _adaptive_solve(y0, p, jnp.asarray(taus), levels, jumps, ts, lagged=lagged, **span)
+    sol = _adaptive_solve(y0, p, jnp.asarray(taus), jnp.asarray(delays), levels, jnp.asarray(jumps),
+                          jnp.asarray(shifted), ts, lagged=lagged, **span)  # fmt: skip
     ys = np.asarray(sol.ys)[:, :4]
     if not (sol.result == diffrax.RESULTS.successful) or not np.all(np.isfinite(ys)):
         raise ParameterError(f"reference solve failed ({sol.result}); the parameters make the "

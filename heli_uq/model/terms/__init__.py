@@ -15,6 +15,7 @@ from heli_uq.model.terms.cross_damping import CrossDamping as CrossDamping
 from heli_uq.model.terms.deadband import DeadBand as DeadBand
 from heli_uq.model.terms.feature_torque import FeatureTorque as FeatureTorque
 from heli_uq.model.terms.gp_torque import GPTorque as GPTorque
+from heli_uq.model.terms.input_delay import InputDelay as InputDelay
 from heli_uq.model.terms.linear_torque import LinearTorque as LinearTorque
 from heli_uq.model.terms.motor_lag import MotorLag as MotorLag
 from heli_uq.model.terms.neural_torque import NeuralTorque as NeuralTorque
@@ -34,19 +35,19 @@ EFFECTS = {cls.kind: cls for cls in (DeadBand, CoulombFriction, QuadraticDrag, T
 #: Every term a model file or ``--effects`` may name: the vocabulary plus the stiction
 #: variant of friction (breakaway above the sliding level; outside the effects table), the
 #: yaw torques' ``cos theta`` tilt with pitch (a correction of the paper's torque), the
-#: first-order lag of a motor's voltage (a motor's dynamics), the torque of one axis'
-#: rate on the other (cross damping), the
-#: neural torque of the hybrid model, the feature torque of an equation recovered from it
-#: and the Gaussian-process torque of the voltages (model discrepancy).  Only the
+#: first-order lag of a motor's voltage (a motor's dynamics), a motor's dead time, the
+#: torque of one axis' rate on the other (cross damping), the neural torque of the hybrid
+#: model, the feature torque of an equation recovered from it and the Gaussian-process torque
+#: of the voltages (model discrepancy).  Only the
 #: vocabulary's effects are discovery candidates.
 TERMS = {**EFFECTS, Stiction.kind: Stiction, ThrustTilt.kind: ThrustTilt,
-         MotorLag.kind: MotorLag, CrossDamping.kind: CrossDamping, NeuralTorque.kind: NeuralTorque,
-         FeatureTorque.kind: FeatureTorque, GPTorque.kind: GPTorque}
+         MotorLag.kind: MotorLag, InputDelay.kind: InputDelay, CrossDamping.kind: CrossDamping,
+         NeuralTorque.kind: NeuralTorque, FeatureTorque.kind: FeatureTorque, GPTorque.kind: GPTorque}
 
 __all__ = [
     "AbstractEffect", "AbstractInputMap", "AbstractTerm", "AbstractTorque", "AbstractMechanics",
     "ClosedFormMechanics", "LagrangianMechanics", "LinearTorque", "CoulombFriction", "DeadBand",
     "QuadraticDrag", "QuadraticThrust", "TorqueOffset", "TorsionalSpring", "NeuralTorque",
-    "FeatureTorque", "GPTorque", "Stiction", "ThrustTilt", "MotorLag", "CrossDamping",
+    "FeatureTorque", "GPTorque", "Stiction", "ThrustTilt", "MotorLag", "InputDelay", "CrossDamping",
     "EFFECTS", "TERMS",
 ]  # fmt: skip

@@ -25,7 +25,8 @@ import numpy as np
 
 from heli_uq.errors import ParameterError
 from heli_uq.model.heli_model import HeliModel
-from heli_uq.model.terms.motor_lag import TAU_FLOOR
+from heli_uq.model.terms.input_delay import InputDelay
+from heli_uq.model.terms.motor_lag import TAU_FLOOR, MotorLag
 from heli_uq.simulation.solver import solve
 
 __all__ = ["reference_solve", "solver_error", "REFERENCE_RTOL", "REFERENCE_ATOL"]
@@ -77,19 +78,28 @@ def _adaptive_solve(y0, p, taus, delays, levels, switch_ts, jump_ts, ts, *, mode
         stepsize_controller=controller, max_steps=MAX_STEPS, throw=False)  # fmt: skip
 
 
-def _lags(model: HeliModel, p) -> tuple[tuple[bool, bool], np.ndarray, np.ndarray]:
+def _motor_dynamics(model: HeliModel, p) -> tuple[tuple[bool, bool], np.ndarray, np.ndarray]:
     """Which motors lag (time constant above the floor), their time constants [s] and
-    every motor's dead time [s] (0 without one)."""
+    every motor's dead time [s] (0 without one).
+
+    Raises
+    ------
+    ParameterError
+        A sequence map of the voltages with no continuous form here.
+    """
     taus, delays = np.ones(2), np.zeros(2)
     lagged = [False, False]
     for term in model.inputs:
-        if hasattr(term, "time_constant"):
+        if isinstance(term, MotorLag):
             i, tau = term.time_constant(p)
             if float(tau) > TAU_FLOOR:
                 lagged[i], taus[i] = True, float(tau)
-        if hasattr(term, "delay"):
+        elif isinstance(term, InputDelay):
             i, d = term.delay(p)
             delays[i] = max(float(d), 0.0)
+        elif term.filters_sequence:
+            raise ParameterError(f"reference solve: {term.label} acts on the voltage sequence and "
+                                 "has no continuous form here")  # fmt: skip
     return tuple(lagged), taus, delays
 
 
@@ -122,7 +132,7 @@ def reference_solve(params: Mapping | None, x0, u, dt: float, *, model: HeliMode
     starts = np.concatenate([[0], np.flatnonzero(np.any(u[1:] != u[:-1], axis=1)) + 1])
     # parameters, levels and switch times are arguments of one compiled solve per model,
     # record shape and tolerances (closed over, each parameter set compiled anew)
-    lagged, taus, delays = _lags(model, p)
+    lagged, taus, delays = _motor_dynamics(model, p)
     p = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in p.items()}
     span = {"model": model, "t1": float(ts[-1]) if n > 1 else dt, "dt0": dt / 4, "rtol": rtol,
             "atol": atol}

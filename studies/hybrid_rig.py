@@ -44,9 +44,10 @@ NETWORKS = {"u": {"inputs": "u", "project": "u"}, "uxv": {"inputs": "u,x,v", "pr
 PAPER_V = {"mechanistic": 1.137, "u": 0.114, "uxv": 0.173}
 
 
-def _scores(problem, params, x0, record) -> dict:
-    """V and RMSE on the training window, the test window and the whole record."""
-    full = make_problem(record, model=problem.model, error="iid")
+def _scores(problem, params, x0, record, substeps: int) -> dict:
+    """V and RMSE on the training window, the test window and the whole record, simulated
+    with ``substeps`` (those of the fit: a stiff one blows up a coarser solve)."""
+    full = make_problem(record, model=problem.model, error="iid", substeps=substeps)
     ys = np.asarray(full.solve(params, jnp.asarray(x0)).ys)[:, :2]
     out = {}
     windows = {"train": (0, problem.n_train), "full": (0, len(full.y))}
@@ -66,7 +67,7 @@ def run(record, train_w, test_w, networks, hidden: int, seed: int) -> tuple[list
     base = make_problem(record, train_w, test_w, error="iid")
     start = prepare_start(base, n_starts=4, seed=seed)
     params, x0 = start.map_point()
-    scores, ys = _scores(start.problem, params, x0, record)
+    scores, ys = _scores(start.problem, params, x0, record, start.problem.substeps)
     rows = [{"model": "mechanistic", "training": "MAP", "scores": scores,
              "seconds": time.perf_counter() - t0}]  # fmt: skip
     sims = {"mechanistic": ys}
@@ -78,9 +79,9 @@ def run(record, train_w, test_w, networks, hidden: int, seed: int) -> tuple[list
         for mode, trainable in (("physics frozen", None), ("joint", "all")):
             result = train(problem, current, x0, trainable=trainable)
             current = result.params
-            scores, ys = _scores(problem, current, x0, record)
+            scores, ys = _scores(problem, current, x0, record, result.substeps)
             rows.append({"model": f"+ FNN({key})", "training": mode, "hidden": hidden,
-                         "scores": scores, "v_start": result.v_start,
+                         "scores": scores, "v_start": result.v_start, "substeps": result.substeps,
                          "lbfgs_steps": result.lbfgs_steps, "seconds": result.seconds})  # fmt: skip
             sims[f"+ FNN({key}), {mode}"] = ys
     return rows, sims

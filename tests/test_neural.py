@@ -234,6 +234,37 @@ def test_training_rejects_steps_that_blow_up_the_model(monkeypatch):
     assert all(np.isfinite(v) for v in result.params.values())
 
 
+#: ``rate * dt`` of a yaw damping's decaying mode that makes the start stiff: past RK4's
+#: stability limit 2.785 at one step per sample (a MAP of the rig's first 14 s has
+#: D_psi = 3.5 N m s/rad on a yaw inertia of 0.008 kg m^2: 4.3).
+STIFF_RATE_STEP = 4.0
+
+
+def test_training_takes_the_substeps_a_stiff_start_needs():
+    """A start whose yaw damping blows up a one-step solve (V is NaN there) is trained on
+    the substeps it needs, not refused, and its V is the V of that solve."""
+    from heli_uq.inference import train
+    from heli_uq.model.terms.rigid_body import yaw_inertia
+    from heli_uq.probability import loss_v, make_problem
+    from heli_uq.simulation import default_substeps
+
+    rec = _record(seconds=4.0, seed=8)
+    item = {"effect": "neural_torque", "axis": "yaw", "hidden": 2}
+    problem = make_problem(rec, model=build_model([item]), error="iid", substeps=1)
+    inertia = min(float(yaw_inertia(RIG_FIT, th)) for th in np.asarray(rec.y)[:, 0])
+    start = dict(RIG_FIT, D_psi=STIFF_RATE_STEP * inertia / rec.dt)
+    assert not np.isfinite(float(loss_v(problem.solve(start, RIG_FIT_X0).ys, problem.y)))
+    need = default_substeps(problem.model, start, rec.dt)
+    assert need > 1
+    result = train(problem, start, RIG_FIT_X0, adam_steps=3, lbfgs_steps=0)
+    assert result.substeps == need
+    covered = problem.with_substeps(need)
+    v_start = float(loss_v(covered.solve({**start, **{n: 0.0 for n in result.trained if "nn_w_" in n}},
+                                         RIG_FIT_X0).ys, problem.y))  # fmt: skip
+    assert result.v_start == pytest.approx(v_start, rel=1e-12)
+    assert np.isfinite(result.v) and result.v <= result.v_start
+
+
 #: Smoothed rates of a noisy synthetic record must be this much closer to the true rates
 #: than plain central differences (the noise of a difference is sigma sqrt(2) / (2 dt)).
 RATE_GAIN = 5.0

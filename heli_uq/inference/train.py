@@ -6,8 +6,11 @@ then 100 BFGS steps, on the loss ``V`` (Eq. 1, [rad^2]) of the training window.
 over any subset of the model's parameters: by default the neural terms' weights, the
 physics held at the given values; with ``trainable="all"`` every free parameter jointly.
 Positive parameters are trained as logs, real ones as they are; the initial state is
-held.  This is the fast, non-Bayesian route; the posterior over the same parameters is
-the NUTS / Laplace workflow of :mod:`heli_uq.inference`.
+held.  The solver takes at least the substeps its start needs
+(:func:`~heli_uq.simulation.default_substeps`: a fit with a heavy damping or sharp friction
+is stiff), so a start that a one-step solve would blow up is trained, not refused.  This is
+the fast, non-Bayesian route; the posterior over the same parameters is the NUTS / Laplace
+workflow of :mod:`heli_uq.inference`.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from heli_uq.inference.map import _lbfgs
 from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.probability.likelihood import loss_v
 from heli_uq.probability.problem import Problem
+from heli_uq.simulation.stiffness import capped_substeps, default_substeps
 
 __all__ = ["train", "Training", "ADAM_STEPS", "LBFGS_STEPS", "LEARNING_RATE"]
 
@@ -53,6 +57,9 @@ class Training:
     lbfgs_steps : int
         L-BFGS iterations taken.
     seconds : float
+    substeps : int
+        RK4 substeps per sample of the solves: the problem's, or more if the start needed
+        them.
     """
 
     params: dict
@@ -62,6 +69,7 @@ class Training:
     v_adam: np.ndarray
     lbfgs_steps: int
     seconds: float
+    substeps: int
 
 
 def _trainable_names(problem: Problem, trainable) -> tuple[str, ...]:
@@ -139,6 +147,10 @@ def train(problem: Problem, params: Mapping, x0, *, trainable: Sequence[str] | s
     silent = {p.name: 0.0 for t in model.torques if isinstance(t, NeuralTorque)
               for p in t.parameters() if p.bare.startswith("nn_w_")}  # fmt: skip
     full = {**model.start_values(), **silent, **dict(params)}
+    need = capped_substeps(default_substeps(model, {k: v for k, v in full.items() if k in model.names},
+                                            problem.dt), "train's start")  # fmt: skip
+    if need > problem.substeps:  # a stiff start (a heavy damping) would blow up a coarser solve
+        problem = problem.with_substeps(need)
     names = _trainable_names(problem, trainable)
     logs = _transforms(problem, names)
     held = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in full.items() if k not in names}
@@ -199,4 +211,4 @@ def train(problem: Problem, params: Mapping, x0, *, trainable: Sequence[str] | s
     out = {k_: float(v_) for k_, v_ in unpack(w).items()}
     return Training(params=out, trained=names, v_start=v_start, v=v,
                     v_adam=np.asarray(v_adam), lbfgs_steps=int(k),
-                    seconds=time.perf_counter() - t0)  # fmt: skip
+                    seconds=time.perf_counter() - t0, substeps=problem.substeps)  # fmt: skip

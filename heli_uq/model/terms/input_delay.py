@@ -65,10 +65,9 @@ class InputDelay(AbstractEffect, AbstractInputMap):
         shift = jnp.maximum(p[self.name("d")], 0.0) / h
         n = jnp.floor(shift)
         f = shift - n
-        k = jnp.arange(u.shape[0])
+        source = jnp.arange(u.shape[0]) - n.astype(jnp.int32)  # the step u_{k-n}
         col = u[:, i]
-        now = col[jnp.clip(k - n.astype(jnp.int32), 0, None)]
-        before = col[jnp.clip(k - n.astype(jnp.int32) - 1, 0, None)]
+        now, before = col[jnp.clip(source, 0, None)], col[jnp.clip(source - 1, 0, None)]
         return u.at[:, i].set((1.0 - f) * now + f * before)
 
     def __call__(self, p, u):

@@ -21,13 +21,15 @@ effects joined by ``+`` (``yaw:torque_offset+pitch:deadband``) hides both and ru
 
 Writes one JSON line per case to ``--out`` (default
 ``studies/results/discovery_confusion.jsonl``): the truth, what was named, whether each
-hidden parameter's 95 % interval holds the truth, the best candidate's score and the wall
-time; then prints the confusion table (truth -> named) of all lines in the file.  The
-margin of "none" (:data:`heli_uq.discovery.score.MARGIN_PER_SAMPLE`) is checked against the
-``none`` cases: their best candidate's score per held-out sample is printed, and the
-candidate of largest CRPS gain (``best_crps``: per sample, its SE ratio and its fraction
-of the base's CRPS, what :data:`heli_uq.discovery.score.MARGIN_CRPS_FRACTION` is set
-from).  ``--score crps`` lets the CRPS decide (``heli-uq discover --score``).  Usage::
+hidden parameter's 95 % interval holds the truth (and, for a torque, whether the interval
+of its ratio to its axis' inertia holds the truth's ratio: :func:`ratio_coverage`), the
+best candidate's score and the wall time; then prints the confusion table (truth -> named)
+of all lines in the file.  The margin of "none"
+(:data:`heli_uq.discovery.score.MARGIN_PER_SAMPLE`) is checked against the ``none`` cases:
+their best candidate's score per held-out sample is printed, and the candidate of largest
+CRPS gain (``best_crps``: per sample, its SE ratio and its fraction of the base's CRPS,
+what :data:`heli_uq.discovery.score.MARGIN_CRPS_FRACTION` is set from).  ``--score crps``
+lets the CRPS decide (``heli-uq discover --score``).  Usage::
 
     python studies/discovery_confusion.py [--cases none yaw:coulomb_friction ...] [--seeds 1 2]
 """
@@ -53,6 +55,7 @@ from heli_uq.data import load_data  # noqa: E402
 from heli_uq.discovery import discover  # noqa: E402
 from heli_uq.errors import ParameterError  # noqa: E402
 from heli_uq.model import AXES, EFFECTS, RIG_FIT, RIG_FIT_X0, build_model  # noqa: E402
+from heli_uq.model.terms.rigid_body import pitch_inertia, yaw_inertia  # noqa: E402
 from heli_uq.probability.priors import parse_prior_option  # noqa: E402
 from heli_uq.simulation import reference_solve, synthetic_experiment  # noqa: E402
 from heli_uq.simulation.synthetic import ENCODER_QUANTUM, RIG_RANGES, step_inputs  # noqa: E402
@@ -174,9 +177,11 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
             for p in term.parameters():
                 if p.name in dict(args.fix):  # fixed by --fix: not estimated, not reported
                     continue
-                ci = added[f"{term.axis}:{term.kind}"][p.bare]["ci95"]
+                found = added[f"{term.axis}:{term.kind}"][p.bare]
+                ci = found["ci95"]
                 covered[p.name] = {"truth": truth[p.name], "ci95": ci,
-                                   "covered": ci[0] <= truth[p.name] <= ci[1]}
+                                   "covered": ci[0] <= truth[p.name] <= ci[1],
+                                   **ratio_coverage(found, truth, p.name, term.axis)}
     best = next((c for c in res["candidates"] if c.get("score") is not None), None)
     by_crps = max((c for c in res["candidates"] if c.get("crps_gain") is not None),
                   key=lambda c: c["crps_gain"], default=None)
@@ -198,6 +203,22 @@ def run_case(case: str, inputs: str, seed: int, args) -> dict:
             **({"fix": dict(args.fix)} if args.fix else {}),
             **({"max_effects": args.max_effects} if args.max_effects > 1 else {}),
             **({"refit": refit_facts(keep / "refit" / "summary.json")} if keep else {})}  # fmt: skip
+
+
+def ratio_coverage(found: dict, truth: dict, name: str, axis: str) -> dict:
+    """For a torque-type parameter, whether the 95 % interval of its ratio to its axis'
+    inertia (``per_inertia``, the quantity the record identifies) holds the truth's ratio:
+    ``{ratio_truth, ratio_ci95, ratio_covered}``, or ``{}`` if it has none.  Its interval in
+    N m holds the truth as far as the common scale's prior does, and under the default
+    priors that interval spans three decades (studies/notes/posterior.md, "Where the common
+    scale lands"), so the ratio is the test of the fit."""
+    if "per_inertia" not in found:
+        return {}
+    ratio = found["per_inertia"]
+    inertia = (pitch_inertia(truth) if axis == "pitch" else yaw_inertia(truth, ratio["theta_ref"]))
+    value = truth[name] / float(inertia)
+    lo, hi = ratio["ci95"]
+    return {"ratio_truth": value, "ratio_ci95": [lo, hi], "ratio_covered": bool(lo <= value <= hi)}
 
 
 def crps_facts(c: dict) -> dict:
@@ -229,15 +250,18 @@ def confusion(path) -> str:
     table = collections.defaultdict(collections.Counter)
     for r in rows:
         table[r["case"]][r["named"]] += 1
-    lines = ["| truth | named (count) | correct | 95 % intervals hold the truth | median time [s] |",
-             "|---|---|---|---|---|"]
+    lines = ["| truth | named (count) | correct | 95 % intervals hold the truth | their ratios to the "
+             "inertia hold the truth's | median time [s] |", "|---|---|---|---|---|---|"]
     for case in sorted(table):
         rs = [r for r in rows if r["case"] == case]
         cov = [c["covered"] for r in rs for c in r["covered"].values()]
+        ratios = [c["ratio_covered"] for r in rs for c in r["covered"].values() if "ratio_covered" in c]
         times = sorted(r["discover_s"] for r in rs)
         lines.append(f"| {case} | " + ", ".join(f"{k} ({v})" for k, v in table[case].most_common())
                      + f" | {sum(r['correct'] for r in rs)}/{len(rs)} | "
-                     + (f"{sum(cov)}/{len(cov)}" if cov else "-") + f" | {times[len(times) // 2]:.0f} |")
+                     + (f"{sum(cov)}/{len(cov)}" if cov else "-") + " | "
+                     + (f"{sum(ratios)}/{len(ratios)}" if ratios else "-")
+                     + f" | {times[len(times) // 2]:.0f} |")
     nulls = [r["best"]["score_per_sample"] for r in rows if r["case"] == "none" and r["best"]]
     if nulls:
         lines.append(f"\nnull records: best candidate's score per held-out sample "

@@ -489,7 +489,8 @@ def test_init_is_the_first_map_start_and_a_bad_one_is_one_line(tmp_path, capsys,
     """``--init FILE.json`` reaches the MAP as its first guess with the file's names only (the
     MAP start fills in the model's start values: a default of an effect, 0, can sit on a
     bound where no fit starts); an unknown name in it is refused in one line that names
-    the file."""
+    the file.  ``--init DIR`` reads an earlier run's ``DIR/map.json``, and a directory
+    without one is refused in one line."""
     from heli_uq.output import posterior_study
 
     seen = {}
@@ -507,6 +508,16 @@ def test_init_is_the_first_map_start_and_a_bad_one_is_one_line(tmp_path, capsys,
     assert code == 2 and "stopped by the test" in err
     (guess,) = seen["guesses"]
     assert guess == {"J_s": 0.00025, "F_c_yaw": 0.013}  # not completed with the defaults
+    run_dir = tmp_path / "friction_run"  # an earlier run's --out directory: its map.json
+    run_dir.mkdir()
+    code, _, err = run(capsys, *argv, "--init", str(run_dir))
+    assert code == 2
+    assert_one_line_error(err, "--init", "friction_run", "map.json")
+    (run_dir / "map.json").write_text('{"J_s": 0.0003, "F_c_yaw": 0.02}')
+    seen.clear()
+    code, _, err = run(capsys, *argv, "--init", str(run_dir))
+    assert code == 2 and "stopped by the test" in err
+    assert seen["guesses"] == [{"J_s": 0.0003, "F_c_yaw": 0.02}]
     init.write_text('{"J_s": 0.00025, "F_s_yaw": 0.002}')  # not a parameter of this model
     code, _, err = run(capsys, *argv, "--init", str(init))
     assert code == 2

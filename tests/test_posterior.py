@@ -13,9 +13,11 @@ from heli_uq.cli import main
 from heli_uq.errors import ParameterError
 from heli_uq.inference import run_emcee, run_nuts
 from heli_uq.inference.density import constrain_draws, log_density_setup
+from heli_uq.model import HeliModel, load_params_json
+from heli_uq.model.tables import X0_NAMES
 from heli_uq.output import summarize, to_inference_data
 from heli_uq.probability import log_likelihood, make_problem
-from heli_uq.simulation import SYNTHETIC_PARAMS, synthetic_experiment
+from heli_uq.simulation import SYNTHETIC_PARAMS, simulate, synthetic_experiment
 
 NUTS = dict(chains=2, warmup=150, draws=150, chunk=75, seed=0, progress=False, target_accept=0.95)
 #: Sampler health on the shared record.  It is short (4 s) with 3 mrad noise and its
@@ -147,6 +149,9 @@ def test_overlapping_windows_and_bad_draws_are_clear_errors(synthetic_problem, t
 
 #: A tree-depth limit the short synthetic posterior reaches (its trees are 3-4 deep).
 TREE_DEPTH = 2
+#: The MAP's simulation fits the 3 mrad noise of the CLI record to within this RMS [rad]
+#: per axis (Table 1's start values are ~0.1 rad off on it).
+MAP_FIT_RMSE = 0.006
 
 
 def _cli_record():
@@ -177,6 +182,17 @@ def test_cli_sample_end_to_end(tmp_path, capsys):
     assert int(idata.sample_stats["n_steps"].max()) <= 2**TREE_DEPTH - 1
     assert (out / "bands.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "m" in (out / "summary.csv").read_text()
+    # map.json: every parameter of the model at the MAP, which simulates the fitting window
+    # to the noise (simulate --params reads it; sample --init DIR starts from it)
+    fit = load_params_json(out / "map.json")
+    start = HeliModel().start_values()  # the record's truth: a fit of noisy data moves off it
+    assert set(fit) == set(start) and any(abs(fit[k] / start[k] - 1) > 1e-6 for k in start)
+    x0 = [float(idata.posterior[n].mean()) for n in X0_NAMES]
+    states = np.asarray(simulate(fit, x0, record.u, record.dt, substeps=summary["substeps"]))
+    n_train = summary["windows"]["train"]["n_samples"]
+    rmse = np.sqrt(np.mean((states[:n_train, :2] - record.y[:n_train]) ** 2, axis=0))
+    assert np.all(rmse < MAP_FIT_RMSE), rmse
+    assert np.isfinite(summary["map_value"])
     capsys.readouterr()  # forget the successful run's output (arviz logs 1-chain warnings)
     for bad in (["--train", "0:1.39", "--test", "1:2"], ["--draws", "0"],
                 ["--window", "5:9"], ["--fix", "m=lognormal:1:1"],

@@ -115,6 +115,28 @@ def test_a_hidden_tilt_is_a_case_outside_the_table_and_fix_parses():
             _fixed(bad)
 
 
+def test_the_confusion_study_checks_the_identified_ratio_of_a_torque():
+    """A friction level's interval in N m holds the truth as far as the common scale's prior
+    does; the study also checks its ratio to the axis' inertia, the quantity the record
+    identifies: at theta_ref = 0, ``M22 = J_bc + m r_c^2 + J_s``; pitch: ``M11 = J_bc +
+    m (r_c^2 + h^2)``."""
+    from studies.discovery_confusion import ratio_coverage
+
+    truth = {"J_bc": 0.01, "m": 1.0, "r_c": 0.1, "h": 0.02, "J_s": 0.005, "F_c_yaw": 0.025,
+             "F_c_pitch": 0.003}  # fmt: skip
+    m22, m11 = 0.01 + 0.01 + 0.005, 0.01 + (0.01 + 0.0004)
+    found = {"ci95": [1e-4, 1.0], "per_inertia": {"ci95": [0.999 * 0.025 / m22, 1.001 * 0.025 / m22],
+                                                  "theta_ref": 0.0}}
+    got = ratio_coverage(found, truth, "F_c_yaw", "yaw")
+    assert got["ratio_covered"] and np.isclose(got["ratio_truth"], 0.025 / m22, rtol=1e-12)
+    found["per_inertia"]["ci95"] = [1.01 * 0.025 / m22, 1.1 * 0.025 / m22]  # misses the truth
+    assert not ratio_coverage(found, truth, "F_c_yaw", "yaw")["ratio_covered"]
+    pitch = {"ci95": [0, 1], "per_inertia": {"ci95": [0.0, 1.0]}}
+    assert np.isclose(ratio_coverage(pitch, truth, "F_c_pitch", "pitch")["ratio_truth"], 0.003 / m11,
+                      rtol=1e-12)  # fmt: skip
+    assert ratio_coverage({"ci95": [0.2, 0.4]}, truth, "delta_yaw", "yaw") == {}  # not a torque
+
+
 def _confusion_rows() -> list[dict]:
     rows = []
     for path in sorted((REPO / "studies" / "results").glob("discovery_confusion*.jsonl")):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import pathlib
 
 from heli_uq.cli.options import (
     EFFECTS_HELP,
@@ -48,7 +49,7 @@ def cmd_sample(args) -> int:
         numpyro.set_host_device_count(args.chains)
     model = model_from_args(args)
     priors = priors_from_args(args, model)
-    guesses = [] if args.init is None else [load_params_json(args.init, model, complete=False)]
+    guesses = [] if args.init is None else [load_params_json(_init_file(args.init), model, complete=False)]
     record = load_data(args.data)
     if args.window is not None:
         record = record.window(*parse_window(args.window))
@@ -86,6 +87,20 @@ def cmd_sample(args) -> int:
                          train or (float(record.t[0]), float(record.t[0] + record.duration)))
     print(f"wrote {out / 'posterior.nc'}, summary.csv, summary.json, bands.png")
     return report_health(summary, args.strict)
+
+
+def _init_file(path: str) -> pathlib.Path:
+    """``--init``: a parameter file, or the ``--out`` directory of an earlier run (its
+    :data:`~heli_uq.output.posterior_study.MAP_FILE`)."""
+    from heli_uq.output.posterior_study import MAP_FILE
+
+    given = pathlib.Path(path)
+    if not given.is_dir():
+        return given
+    if not (given / MAP_FILE).is_file():
+        raise ParameterError(f"--init {path}: a directory without {MAP_FILE} (expected a parameter "
+                             "file, or the --out directory of a 'heli-uq sample' run that found its MAP)")
+    return given / MAP_FILE
 
 
 def _prior_words(args) -> list[str]:
@@ -150,7 +165,8 @@ def add_parser(subparsers):
             "Writes DIR/posterior.nc (arviz InferenceData), DIR/summary.csv,\n"
             "DIR/summary.json (R-hat, ESS, divergences, parameters with 95 % intervals,\n"
             "RMSE, 90 % coverage per window, solver accuracy, wall time) and\n"
-            "DIR/bands.png; draws are saved in DIR/chunks as they come.  The model's\n"
+            "DIR/bands.png, DIR/map.json (the MAP's parameters, for --init or simulate\n"
+            "--params); draws are saved in DIR/chunks as they come.  The model's\n"
             "description is stored in posterior.nc and summary.json.\n"
             "Both samplers start from a multi-start MAP; NUTS uses a dense mass matrix\n"
             "started from the Laplace covariance, in identifiable coordinates."
@@ -167,7 +183,7 @@ def add_parser(subparsers):
             "  heli-uq sample --data rec.csv --effects yaw:coulomb_friction --error iid \\\n"
             "      --out out/friction\n"
             "  heli-uq sample --data rec.csv --effects yaw:coulomb_friction,yaw:stiction \\\n"
-            "      --init friction_fit.json --error iid --out out/stiction\n"
+            "      --init out/friction --error iid --out out/stiction\n"
             "  heli-uq sample --data experimental --model hybrid --nn-inputs u --error iid \\\n"
             "      --target-accept 0.95 --train 0:91 --test 91:131 --out out/hybrid\n\n"
             "hybrid: R-hat and ESS are judged on the physical parameters and on the network's\n"
@@ -207,11 +223,12 @@ def add_parser(subparsers):
                    help="training window [s] (default: the whole (windowed) record)")
     p.add_argument("--test", metavar="C:D", default=None,
                    help="held-out test window [s], after the training window")
-    p.add_argument("--init", metavar="FILE.json", default=None,
+    p.add_argument("--init", metavar="FILE.json|DIR", default=None,
                    help="the first MAP start: parameter values as 'simulate --params' reads them"
-                        " (missing names take the model's start values), e.g. a fit of a smaller"
-                        " model the new one nests, whose own starts may land in a worse basin;"
-                        " the initial state is fitted from the record as always")
+                        " (missing names take the model's start values), or the --out DIR of an"
+                        " earlier run (its map.json), e.g. the fit of a smaller model the new one"
+                        " nests, whose own starts may land in a worse basin; the initial state"
+                        " is fitted from the record as always")
     p.add_argument("--chains", type=int, default=4,
                    help="NUTS chains, or emcee ensembles (default: 4)")
     p.add_argument("--warmup", type=int, default=1000,

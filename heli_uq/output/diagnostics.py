@@ -78,9 +78,9 @@ def convergence(idata) -> dict:
         torques = [v for v in names if v.startswith("nn_torque_")]
         out["rhat_max_network_torque"] = float(summ.loc[[i for i in summ.index
                                                         if i.split("[")[0] in torques], "r_hat"].max())
-    for key in ("map_seconds", "warmup_seconds", "map_decrement", "map_decrement_max", "target_accept",
-                "substeps", "wall_coordinates", "wall_sides", "max_tree_depth", "metric_factors",
-                "draws_requested", "draws_extended_from", "warmup_requested", "warmup",
+    for key in ("map_value", "map_seconds", "warmup_seconds", "map_decrement", "map_decrement_max",
+                "target_accept", "substeps", "wall_coordinates", "wall_sides", "max_tree_depth",
+                "metric_factors", "draws_requested", "draws_extended_from", "warmup_requested", "warmup",
                 "adapt_mass_matrix"):
         if key in info:
             out[key] = info[key]

@@ -5,8 +5,10 @@ Files written to ``out_dir``: ``posterior.nc`` (InferenceData, with the model de
 in its attributes), ``summary.csv`` (arviz summary in physical units), ``summary.json``
 (convergence, parameters with 95 % intervals, RMSE, coverage, the solver's accuracy at
 the draw of highest density and the stiffest draw, the draws' stiffness against the solver's
-stability limit, wall time), ``bands.png`` (posterior-predictive bands), and
-``chunks/`` (draws saved as they come).
+stability limit, wall time), ``bands.png`` (posterior-predictive bands), ``map.json``
+(:data:`MAP_FILE`: the MAP's parameters as ``simulate --params`` and ``sample --init`` read
+them, so a larger model that nests this one can start from this fit), and ``chunks/``
+(draws saved as they come).
 """
 
 from __future__ import annotations
@@ -46,11 +48,15 @@ from heli_uq.probability.problem import make_problem
 from heli_uq.simulation.reference import solver_error
 from heli_uq.simulation.stiffness import STABLE_STEP, stiffness_check, stiffness_rates
 
-__all__ = ["sample_posterior", "bands_figure", "parameter_summary", "write_summary", "SOLVER_TOL"]
+__all__ = ["sample_posterior", "bands_figure", "parameter_summary", "write_summary", "SOLVER_TOL",
+           "MAP_FILE"]
 
 #: The fixed-step solver must stay within this angle error [rad] of the adaptive reference
 #: at the posterior mean; a larger error is reported as a warning.
 SOLVER_TOL = 1e-4
+#: The MAP's parameters in a run's directory: a flat JSON object ``{name: value [SI]}`` of
+#: every model parameter (fixed ones at their fixed values), written when the MAP is found.
+MAP_FILE = "map.json"
 
 
 def parameter_summary(idata, model: HeliModel, problem=None) -> dict:
@@ -249,6 +255,7 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
                               guesses=guesses)  # fmt: skip
         stage(f"MAP done: -log p = {start.map_value:.6g}, Newton decrement "
               f"{start.map_decrement:.2g}, {start.problem.substeps} substeps")  # fmt: skip
+        atomic_write_text(out / MAP_FILE, json.dumps(start.map_point()[0], indent=1))
     stage(f"{sampler}: {chains} chains x ({warmup} + {draws})"
           + (" (resumed from the saved chunks)" if resume else ""))  # fmt: skip
     if sampler == "nuts":

@@ -68,7 +68,8 @@ HIDDEN = {
             "quadratic_drag": {"c": 0.1}, "torsional_spring": {"k": 0.01, "psi_0": 0.5},
             "quadratic_thrust": {"k_q": 0.02}, "torque_offset": {"T_0": -0.01},
             "thrust_tilt": {"a": 1.0}, "motor_lag": {"tau": 0.3},
-            "cross_damping": {"D_x": 0.1}, "input_delay": {"d": 0.3}},
+            "cross_damping": {"D_x": 0.1}, "input_delay": {"d": 0.3},
+            "axis_tilt": {"b_c": 0.02, "b_s": -0.015}},
     "pitch": {"deadband": {"delta": 0.3}, "coulomb_friction": {"F_c": 0.003},
               "quadratic_drag": {"c": 0.02}, "torsional_spring": {"k": 0.003, "psi_0": -0.5},
               "quadratic_thrust": {"k_q": 0.001}, "torque_offset": {"T_0": 0.002}},
@@ -79,8 +80,10 @@ HIDDEN = {
 #: the yaw motor's lag at the rig's fitted 0.3 s, offered with ``--candidates yaw:motor_lag ...``;
 #: a yaw torque of the pitch rate (``cross_damping``, 0.1 N m s/rad: a pitch rate of 0.2 rad/s
 #: as large a torque as 0.18 V on the yaw motor), offered with ``--candidates yaw:cross_damping ...``;
-#: a dead time of the yaw motor (``input_delay``, 0.3 s), offered with ``--candidates yaw:input_delay ...``.
-EXTRA_CASES = ("yaw:thrust_tilt", "yaw:motor_lag", "yaw:cross_damping", "yaw:input_delay")
+#: a dead time of the yaw motor (``input_delay``, 0.3 s), offered with ``--candidates yaw:input_delay ...``;
+#: a yaw axis tilted by 1.4 degrees (``axis_tilt``, ``b_c = 0.02``, ``b_s = -0.015`` rad),
+#: offered with ``--candidates yaw:axis_tilt ...``.
+EXTRA_CASES = ("yaw:thrust_tilt", "yaw:motor_lag", "yaw:cross_damping", "yaw:input_delay", "yaw:axis_tilt")
 #: A record whose pitch leaves this range [rad] is refused: the real rig hits its stops
 #: long before the body turns over (on the seed-3 staircase a pitch thrust k_q = 0.002
 #: N m/V^2 already lifts it to 7.8 rad, 0.005 spins it through 170 rad).

@@ -42,6 +42,10 @@ def _effects_help() -> str:
                  "(0 = none); the axis names the motor, as for deadband")
     lines.append("  input_delay        a motor acts on its voltage late: u'(t) = u(t - d), d [s] "
                  "(0 = none); the axis names the motor, as for deadband")
+    lines.append("  cross_damping      a torque of the other axis' rate: -D_x omega_other, D_x [N m s/rad] "
+                 "of either sign (0 = none)")
+    lines.append("  axis_tilt          yaw only: the yaw axis leans from the vertical by (b_c, b_s) [rad] "
+                 "towards psi = 0 and pi/2, so gravity turns the body in yaw (0 = level)")
     lines.append("  neural_torque      hybrid model: a tanh network torque of the voltages (weights "
                  "nn_W_*, nn_b_*, nn_w_* [N m]); options inputs (u | u,x,v) and hidden in a "
                  "model file")

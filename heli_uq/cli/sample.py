@@ -85,7 +85,7 @@ def cmd_sample(args) -> int:
             for n, v in effects.items()))  # fmt: skip
     _name_state_networks(args, model, idata, out, summary,
                          train or (float(record.t[0]), float(record.t[0] + record.duration)))
-    print(f"wrote {out / 'posterior.nc'}, summary.csv, summary.json, bands.png")
+    print(f"wrote {out / 'posterior.nc'}, summary.csv, summary.json, bands.png, map.json (--init {out})")
     return report_health(summary, args.strict)
 
 

@@ -6,6 +6,7 @@ one new file with one :class:`~heli_uq.model.terms.base.AbstractEffect` subclass
 entry here.
 """
 
+from heli_uq.model.terms.axis_tilt import AxisTilt as AxisTilt
 from heli_uq.model.terms.base import AbstractEffect as AbstractEffect
 from heli_uq.model.terms.base import AbstractInputMap as AbstractInputMap
 from heli_uq.model.terms.base import AbstractTerm as AbstractTerm
@@ -36,12 +37,14 @@ EFFECTS = {cls.kind: cls for cls in (DeadBand, CoulombFriction, QuadraticDrag, T
 #: variant of friction (breakaway above the sliding level; outside the effects table), the
 #: yaw torques' ``cos theta`` tilt with pitch (a correction of the paper's torque), the
 #: first-order lag of a motor's voltage (a motor's dynamics), a motor's dead time, the
-#: torque of one axis' rate on the other (cross damping), the neural torque of the hybrid
+#: torque of one axis' rate on the other (cross damping), gravity on a tilted yaw axis
+#: (axis tilt), the neural torque of the hybrid
 #: model, the feature torque of an equation recovered from it and the Gaussian-process torque
 #: of the voltages (model discrepancy).  Only the
 #: vocabulary's effects are discovery candidates.
 TERMS = {**EFFECTS, Stiction.kind: Stiction, ThrustTilt.kind: ThrustTilt,
          MotorLag.kind: MotorLag, InputDelay.kind: InputDelay, CrossDamping.kind: CrossDamping,
+         AxisTilt.kind: AxisTilt,
          NeuralTorque.kind: NeuralTorque, FeatureTorque.kind: FeatureTorque, GPTorque.kind: GPTorque}
 
 __all__ = [
@@ -49,5 +52,6 @@ __all__ = [
     "ClosedFormMechanics", "LagrangianMechanics", "LinearTorque", "CoulombFriction", "DeadBand",
     "QuadraticDrag", "QuadraticThrust", "TorqueOffset", "TorsionalSpring", "NeuralTorque",
     "FeatureTorque", "GPTorque", "Stiction", "ThrustTilt", "MotorLag", "InputDelay", "CrossDamping",
+    "AxisTilt",
     "EFFECTS", "TERMS",
 ]  # fmt: skip

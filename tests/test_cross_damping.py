@@ -5,13 +5,11 @@ model at zero."""
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import assert_solver_follows_the_reference
 
 from heli_uq.model import TABLE1, build_model, model_from_description, total_energy
-from heli_uq.simulation import reference_solve, simulate
-from heli_uq.simulation.reference import solver_error
+from heli_uq.simulation import simulate
 
-#: The fixed-step solver's angle error [rad] against the adaptive reference (issue goal).
-SOLVER_TOL = 1e-4
 #: Relative agreement of the energy lost with the integrated power (trapezoid on 5 ms).
 POWER_RTOL = 2e-3
 #: Relative drift of the energy allowed when the damping does no work.
@@ -56,14 +54,8 @@ def test_the_solver_agrees_with_the_adaptive_reference():
     """On 30 s of rig-like voltage steps with both terms at a tenth of the yaw damping the
     fixed-step solution is within 1e-4 rad of diffrax's Kvaerno5."""
     model = build_model(list(MODEL))
-    rng = np.random.default_rng(2)
-    u = np.repeat(rng.uniform([1.25, 0.45], [1.42, 1.6], size=(21, 2)), 150, axis=0)[:3000]
-    p = model.complete({**TABLE1, "D_x_pitch": 0.003, "D_x_yaw": -0.008})
-    x0 = [-0.5, 0.3, 0.0, 0.0]
-    ref = reference_solve(p, x0, u, 0.01, model=model)
-    plain = reference_solve(TABLE1, x0, u, 0.01)
-    assert np.max(np.abs(ref[:, :2] - plain[:, :2])) > 100 * SOLVER_TOL
-    assert solver_error(p, x0, u, 0.01, model=model, substeps=2, reference=ref) <= SOLVER_TOL
+    values = model.complete({**TABLE1, "D_x_pitch": 0.003, "D_x_yaw": -0.008})
+    assert_solver_follows_the_reference(model, values, seed=2)
 
 
 def test_zero_is_the_papers_model_and_the_description_round_trips():

@@ -38,10 +38,9 @@ EFFECTS = {cls.kind: cls for cls in (DeadBand, CoulombFriction, QuadraticDrag, T
 #: yaw torques' ``cos theta`` tilt with pitch (a correction of the paper's torque), the
 #: first-order lag of a motor's voltage (a motor's dynamics), a motor's dead time, the
 #: torque of one axis' rate on the other (cross damping), gravity on a tilted yaw axis
-#: (axis tilt), the neural torque of the hybrid
-#: model, the feature torque of an equation recovered from it and the Gaussian-process torque
-#: of the voltages (model discrepancy).  Only the
-#: vocabulary's effects are discovery candidates.
+#: (axis tilt), the neural torque of the hybrid model, the feature torque of an equation
+#: recovered from it and the Gaussian-process torque of the voltages (model discrepancy).
+#: Only the vocabulary's effects are discovery candidates.
 TERMS = {**EFFECTS, Stiction.kind: Stiction, ThrustTilt.kind: ThrustTilt,
          MotorLag.kind: MotorLag, InputDelay.kind: InputDelay, CrossDamping.kind: CrossDamping,
          AxisTilt.kind: AxisTilt,

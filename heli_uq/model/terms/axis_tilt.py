@@ -39,6 +39,7 @@ import numpy as np
 from heli_uq.model.parameter import Parameter
 from heli_uq.model.prior import Prior
 from heli_uq.model.terms.base import AbstractEffect, AbstractTorque
+from heli_uq.model.terms.rigid_body import GRAVITY_PARAMETERS, centre_of_mass, centre_of_mass_radius, weight
 
 __all__ = ["AxisTilt", "TILT_PRIOR_SD"]
 
@@ -64,18 +65,17 @@ class AxisTilt(AbstractEffect, AbstractTorque):
                      for name, towards in (("b_c", "0"), ("b_s", "pi/2")))  # fmt: skip
 
     def reads(self):
-        return ("m", "g", "r_c", "h")
+        return GRAVITY_PARAMETERS
 
     def potential(self, p, x):
         """``P_tilt`` [J] at ``x = (theta, psi)`` (module docstring)."""
-        reach, _ = _arm(p, x[0])
-        return p["m"] * p["g"] * reach * self._lean(p, x[1])[0]
+        reach, _ = centre_of_mass(p, x[0])
+        return weight(p) * reach * self._lean(p, x[1])[0]
 
     def __call__(self, p, x, v, u):
-        reach, height = _arm(p, x[0])
+        reach, height = centre_of_mass(p, x[0])
         rise, slope = self._lean(p, x[1])
-        weight = p["m"] * p["g"]
-        return weight * height * rise, weight * reach * slope
+        return weight(p) * height * rise, weight(p) * reach * slope
 
     def _lean(self, p, psi):
         """``(b_c cos psi + b_s sin psi, b_c sin psi - b_s cos psi)`` [rad]: the tilt's rise
@@ -86,13 +86,5 @@ class AxisTilt(AbstractEffect, AbstractTorque):
 
     def stiffness(self, p, inertia):
         f = {k: np.asarray(p[k], dtype=float) for k in (*self.reads(), self.name("b_c"), self.name("b_s"))}
-        beta = np.hypot(f[self.name("b_c")], f[self.name("b_s")])
-        torque = f["m"] * f["g"] * np.hypot(f["r_c"], f["h"]) * beta
+        torque = weight(f) * centre_of_mass_radius(f) * np.hypot(f[self.name("b_c")], f[self.name("b_s")])
         return np.sqrt(torque / np.asarray(inertia[1], dtype=float))
-
-
-def _arm(p, theta):
-    """The centre of mass's distance from the yaw axis and its height above the pivot
-    [m] at pitch ``theta``: ``(r_c cos - h sin, r_c sin + h cos)``."""
-    c, s = jnp.cos(theta), jnp.sin(theta)
-    return p["r_c"] * c - p["h"] * s, p["r_c"] * s + p["h"] * c

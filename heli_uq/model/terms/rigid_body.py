@@ -48,6 +48,10 @@ __all__ = [
     "LagrangianMechanics",
     "pitch_inertia",
     "yaw_inertia",
+    "GRAVITY_PARAMETERS",
+    "weight",
+    "centre_of_mass",
+    "centre_of_mass_radius",
     "mass_matrix",
     "dl_dx",
     "closed_form_acceleration",
@@ -116,6 +120,30 @@ def yaw_inertia(p, theta):
     """``M22(theta) = J_bc cos^2 + m (r_c cos - h sin)^2 + J_s`` [kg m^2] (numpy or jax)."""
     c, s = jnp.cos(theta), jnp.sin(theta)
     return p["J_bc"] * c**2 + p["m"] * (p["r_c"] * c - p["h"] * s) ** 2 + p["J_s"]
+
+
+#: The parameters of the body's weight and centre of mass (:func:`centre_of_mass`,
+#: :func:`weight`), which a term of gravity (a tilted yaw axis) reads.
+GRAVITY_PARAMETERS = ("m", "g", "r_c", "h")
+
+
+def weight(p):
+    """``m g`` [N] (numpy or jax)."""
+    return p["m"] * p["g"]
+
+
+def centre_of_mass(p, theta):
+    """The body's centre of mass at pitch ``theta``: its distance from the yaw axis along
+    the arm and its height above the pivot [m], ``(r_c cos - h sin, r_c sin + h cos)``
+    (the distance in ``M22``, the height in the paper's potential; numpy or jax)."""
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    return p["r_c"] * c - p["h"] * s, p["r_c"] * s + p["h"] * c
+
+
+def centre_of_mass_radius(p):
+    """``sqrt(r_c^2 + h^2)`` [m]: the centre of mass's distance from the pivot, the largest
+    of its distances from the yaw axis over all pitch angles (numpy)."""
+    return np.hypot(np.asarray(p["r_c"], dtype=float), np.asarray(p["h"], dtype=float))
 
 
 #: Coordinates of the body parameters (r_c, m, J_bc, h) in which the common inertia scale

@@ -28,6 +28,8 @@ from heli_uq.simulation.synthetic import ENCODER_QUANTUM
 #: limit at any depth; the refit is a smoke-sized end-to-end run, not a converged one).
 TINY = Budget(n_starts=2, cold_starts=0, draws=40, pair_top=0, chains=2, warmup=50, samples=50,
               max_tree_depth=5)
+#: The same, every candidate fitted (no screen of the axes with white residuals).
+TINY_ALL = dataclasses.replace(TINY, screen=False)
 #: The hidden effect and the same effect on the other axis (the naming of the axis); each
 #: candidate is a model of its own to compile, so CI runs two.  The confusion study
 #: (studies/discovery_confusion.py) runs the whole vocabulary, null records included.
@@ -64,6 +66,10 @@ def test_discover_names_a_hidden_yaw_offset_and_closes_the_gap(tmp_path, caplog)
     assert lo <= HIDDEN_T_0 / float(yaw_inertia(RIG_FIT, ratio["theta_ref"])) <= hi
     assert res["gap_after"]["test"]["rmse_psi"] < res["gap_before"]["test"]["rmse_psi"]
     assert res["candidates"][0]["effect"] == "torque_offset" and res["candidates"][0]["score_se"] > 0
+    # the pitch residuals are white noise: the pitch offset is listed, not fitted
+    (other,) = res["candidates"][1:]
+    assert (other["effect"], other["axis"], other["score"]) == ("torque_offset", "pitch", None)
+    assert other["skipped"].startswith("not fitted: it acts on pitch, where the base model's residuals")
     for name in ("report.md", "bands_before.png", "bands_after.png", "residuals.png", "candidates.png",
                  "refit/posterior.nc"):  # fmt: skip
         assert (tmp_path / name).stat().st_size > 0, name
@@ -95,7 +101,7 @@ def test_discover_names_a_hidden_yaw_offset_and_closes_the_gap(tmp_path, caplog)
 @pytest.mark.xdist_group("discover_30s")
 def test_discover_says_none_without_a_hidden_effect_and_reuses_fits(tmp_path):
     rec = _record([], {}, seed=12)
-    kwargs = dict(train=(0.0, SPLIT), test=(SPLIT, SECONDS), budget=TINY, candidates=CANDIDATES,
+    kwargs = dict(train=(0.0, SPLIT), test=(SPLIT, SECONDS), budget=TINY_ALL, candidates=CANDIDATES,
                   scheduler="serial")  # fmt: skip
     res = discover(rec, tmp_path, log=lambda m: None, **kwargs)
     assert res["effect"] == "none" and res["axis"] is None and res["added"] == []
@@ -117,6 +123,13 @@ def test_discover_says_none_without_a_hidden_effect_and_reuses_fits(tmp_path):
     assert gains == sorted(gains, reverse=True)
     assert all(c["crps_gain_fraction"] < MARGIN_CRPS_FRACTION for c in by_crps["candidates"])
     assert "**the CRPS decides**" in (tmp_path / "report.md").read_text()
+    # with the screen: both axes' residuals are white, so nothing is fitted and the answer is none
+    screened = discover(rec, tmp_path / "screened", log=lambda m: None, **{**kwargs, "budget": TINY})
+    assert screened["effect"] == "none" and screened["gap_after"] == res["gap_after"]
+    assert [c["score"] for c in screened["candidates"]] == [None] * len(CANDIDATES)
+    assert screened["decision"].startswith("none: the base model's residuals are white noise on every axis")
+    assert not any((tmp_path / "screened" / "candidates").glob("*.json"))
+    assert "pitch **white**" in (tmp_path / "screened" / "report.md").read_text()
 
 
 def test_bad_input_is_refused_before_any_fit(tmp_path):

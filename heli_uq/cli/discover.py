@@ -21,11 +21,14 @@ def cmd_discover(args) -> int:
 
     if args.max_effects < 1:
         raise ParameterError(f"--max-effects: expected an integer >= 1, found {args.max_effects}")
-    budget = args.budget
+    changes = {}
     if args.cold_starts is not None:
         if args.cold_starts < 0:
             raise ParameterError(f"--cold-starts: expected an integer >= 0, found {args.cold_starts}")
-        budget = dataclasses.replace(BUDGETS[args.budget], cold_starts=args.cold_starts)
+        changes["cold_starts"] = args.cold_starts
+    if args.fit_all:
+        changes["screen"] = False
+    budget = dataclasses.replace(BUDGETS[args.budget], **changes) if changes else args.budget
     base = [s.strip() for s in (args.base_effects or "").split(",") if s.strip()]
     build_model(base, where="--base-effects")
     candidates = [s.strip() for s in (args.candidates or "").split(",") if s.strip()] or None
@@ -101,6 +104,10 @@ def add_parser(subparsers):
     p.add_argument("--cold-starts", type=int, default=None, metavar="N",
                    help="MAP starts of each candidate from the model's start values, besides "
                         "those next to the current fit (default: the budget's, quick 0, full 1)")  # fmt: skip
+    p.add_argument("--fit-all", action="store_true",
+                   help="fit every candidate; by default a candidate that acts only on axes where the "
+                        "base model's residuals are white noise (Ljung-Box, lags to 1 s) is not fitted "
+                        "and is listed as such")  # fmt: skip
     p.add_argument("--score", choices=["log", "crps"], default="log",
                    help="the held-out score that decides: the log predictive density (default), or "
                         "the CRPS, which charges a miss by its size, not its square, and so does not "

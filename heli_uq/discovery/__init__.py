@@ -2,9 +2,10 @@
 refitted model that closes the gap (``heli-uq discover``).
 
 Layer 8 (imports everything below it; only the CLI imports it).  One module per step:
-``locate`` (where the base model fails), ``implied`` (the torque the data imply and each
-effect's feature), ``sindy`` (pysindy ranking), ``candidates`` (one model fitted and
-scored, the Dask task), ``rounds`` (a round of candidate fits, stored and reused),
+``locate`` (where the base model fails), ``screen`` (the axes it fits to white noise),
+``implied`` (the torque the data imply and each effect's feature), ``sindy`` (pysindy
+ranking), ``candidates`` (one model fitted and scored, the Dask task), ``rounds`` (a
+round of candidate fits, stored and reused),
 ``nesting`` (which fit can stand for or start another: restarts, pairs, carried fits),
 ``score`` (blocked held-out scores and gap metrics), ``decide`` (ranking, ties and the
 choice), ``workflow`` (the steps), ``report`` (refit and outputs), ``report_page``

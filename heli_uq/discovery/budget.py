@@ -36,6 +36,8 @@ class Budget:
     ``None``: exactly ``samples``.  Quick: 2000, since most refits end far inside the
     target and 2 x 350 draws of a model with an initial rate on a ridge failed the ESS
     check on every record (bulk ESS 15-399, 2026-11-28).
+    ``screen``: candidates that act only on axes where the base model's residuals are
+    white are not fitted (:mod:`heli_uq.discovery.screen`); ``False`` fits every one.
     """
 
     n_starts: int
@@ -52,6 +54,7 @@ class Budget:
     minutes: float | None = None
     max_samples: int | None = None
     pair_anchors: int = 0
+    screen: bool = True
 
 
 BUDGETS = {"quick": Budget(n_starts=2, cold_starts=0, draws=64, pair_top=3, chains=2, warmup=150,

@@ -95,7 +95,7 @@ def _candidate_rows(rows: list[dict]) -> list[dict]:
                "score_se": r["score_se"], "step": r["step"], "model": r["effect"]}  # fmt: skip
         for k in ("score_per_sample", "passes", "support", "supported", "crps_gain", "crps_gain_se",
                   "crps_gain_fraction", "log_evidence", "tied", "chosen_by", "tie_break", "held_out",
-                  "fit", "laplace", "seconds", "reused", "carried", "error"):
+                  "fit", "laplace", "seconds", "reused", "carried", "error", "skipped"):
             if k in r:
                 row[k] = r[k]
         out.append(row)
@@ -229,6 +229,9 @@ def _decision(added, rows, steps, before, after, criterion="log", n_scored=1, he
     where = "the test window" if w == "test" else "the whole window"
     if not added:
         best = next((r for r in rows if r.get("score") is not None), None)
+        if best is None and rows and all(r.get("skipped") for r in rows):
+            return ("none: the base model's residuals are white noise on every axis a candidate acts on, "
+                    f"so none of the {len(rows)} candidates was fitted (report.md, section 1).")  # fmt: skip
         why = (f"; the best, {best['effect']}, scored {gain_text(best, criterion, n_scored)} on held-out "
                "blocks" if best else "")  # fmt: skip
         if best and best.get("passes") and not best.get("supported"):

@@ -11,6 +11,8 @@ import numpy as np
 
 from heli_uq.data import unseen_inputs
 from heli_uq.discovery.score import GAP_KEYS, MARGIN_CRPS_FRACTION, MARGIN_SE
+from heli_uq.discovery.screen import screen_text
+from heli_uq.model import AXES
 
 __all__ = ["report_page", "gap_warnings", "parameter_text", "tie_text", "CLOSER_V_FRACTION",
            "TIE_EVIDENCE_NATS"]
@@ -168,7 +170,8 @@ def _reused_text(candidates: list[dict]) -> str:
     if not n:
         return ""
     spent = sum(c["seconds"] for c in candidates if c.get("reused") and c.get("seconds") is not None)
-    return (f" {n} of {len(candidates)} candidate fits were reused from an earlier run in this "
+    fitted = sum(not c.get("skipped") for c in candidates)
+    return (f" {n} of {fitted} candidate fits were reused from an earlier run in this "
             f"directory; the minutes above exclude them (they took {spent / 60:.1f} worker-minutes "
             "then).")
 
@@ -194,6 +197,16 @@ def _criterion_text(criterion: str) -> str:
             "ordered by it, and the log density is reported).")
 
 
+def _white_lines(white) -> list[str]:
+    """The screen's finding (:mod:`~heli_uq.discovery.screen`): per axis, white or not."""
+    if not white:
+        return []
+    said = ", ".join(f"{axis} **{'white' if white[axis]['white'] else 'not white'}**" for axis in AXES)
+    return ["", f"Residuals of the base model: {said} ({screen_text(white)}; white at p >= "
+            f"{white['p_white']:g} on both windows). A candidate that acts only on white axes is "
+            "not fitted: nothing is left there for a torque to explain."]  # fmt: skip
+
+
 def report_page(result, where, ranking, steps, base, budget, fit_window, score_window, n_scored, health,
                 whole, seconds, record, base_label=None, priors=(), criterion="log") -> str:  # fmt: skip
     """The text of ``report.md``.  ``seconds``: the whole run's and the search's (base
@@ -211,7 +224,8 @@ def report_page(result, where, ranking, steps, base, budget, fit_window, score_w
              *_model_lines(base_label, priors),
              "## 1. Where the base model fails", "",
              f"Worst axis: **{where['axis']}** (held-out RMSE / fitted error scale: pitch "
-             f"{where['error_ratio']['theta']:.1f}, yaw {where['error_ratio']['psi']:.1f}).", "",
+             f"{where['error_ratio']['theta']:.1f}, yaw {where['error_ratio']['psi']:.1f}).",
+             *_white_lines(where.get("white")), "",
              "| window | RMSE pitch [rad] | outside 90 % pitch | RMSE yaw [rad] | outside 90 % yaw |",
              "|---|---|---|---|---|"]  # fmt: skip
     for w, m in where["windows"].items():
@@ -253,8 +267,8 @@ def report_page(result, where, ranking, steps, base, budget, fit_window, score_w
               "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for c in result["candidates"]:
         if c.get("score") is None:
-            lines.append(f"| {c['step']} | {c['effect']} | {c['axis']} | failed: {c.get('error')} |"
-                         " | | | | | | | | |")  # fmt: skip
+            why = c["skipped"] if c.get("skipped") else f"failed: {c.get('error')}"
+            lines.append(f"| {c['step']} | {c['effect']} | {c['axis']} | {why} | | | | | | | | | |")
             continue
         held, imp = c["held_out"], c.get("laplace") or {}
         k = f"{imp['pareto_k']:.2f} ({imp['ess']:.0f})" if imp else "–"

@@ -7,13 +7,15 @@ Steps (the module of each in parentheses):
    :data:`FIT_FRACTION` of the window and are scored on the rest (leave-future-out), and
    the refit uses the whole window.
 2. **Locate** (:mod:`~heli_uq.discovery.locate`): the base model's MAP and Laplace
-   predictive; where the data leave the 90 % band, by axis, input segment and state.
+   predictive; where the data leave the 90 % band, by axis, input segment and state; and
+   on which axes its residuals are white noise (:mod:`~heli_uq.discovery.screen`).
 3. **Learn** (:mod:`~heli_uq.discovery.implied`, :mod:`~heli_uq.discovery.sindy`): the
    torque the data imply, regressed with pysindy on every candidate effect's feature;
    the ranking orders the candidates and gives start values.
 4. **Name** (:mod:`~heli_uq.discovery.candidates`, :mod:`~heli_uq.discovery.score`):
    every candidate effect (each effect of the vocabulary on each axis, not yet in the
-   model) is added to the current model, fitted and scored on held-out blocks (its
+   model; one that acts only on axes with white residuals is listed, not fitted, unless
+   the budget's ``screen`` is off) is added to the current model, fitted and scored on held-out blocks (its
    predictive: the Laplace draws resampled by importance weights, or the plug-in at the
    MAP where Pareto k rejects them); with two
    or more effects still allowed, pairs too: of the :attr:`Budget.pair_top` singles that
@@ -74,6 +76,7 @@ from heli_uq.discovery.nesting import RESTART_NATS, beyond, carried, model_key, 
 from heli_uq.discovery.report import write_outputs
 from heli_uq.discovery.rounds import CandidateStore, run_round
 from heli_uq.discovery.score import CRITERIA, gain_text, gap_text
+from heli_uq.discovery.screen import screen_text, screened, white_axes
 from heli_uq.discovery.sindy import rank_effects
 from heli_uq.errors import ParameterError
 from heli_uq.executor import check_scheduler
@@ -246,8 +249,12 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     n_scored = d - c  # held-out samples (the blocks tile the window)
     a, b = base_fit.start.problem.windows()["train"]
     n_fit = b - a
-    where = locate(base_fit, out)
+    problem = base_fit.start.problem
+    white = white_axes(problem.y - np.nanmean(base_fit.y_sim, axis=0), problem.windows(), problem.dt)
+    where = {**locate(base_fit, out), "white": white}
     say(f"base model: held-out {gap_text(base['score'])}; worst axis: {where['axis']}")
+    say(f"residuals white on {' and '.join(a for a in AXES if white[a]['white']) or 'neither axis'} "
+        f"({screen_text(white)})")  # fmt: skip
 
     # 3. the torque the data imply, and the sparse regression
     fw = record.window(*fit_w)
@@ -266,8 +273,12 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     restarted, kept = False, {}
     while len(current) - len(base_effects) < max_effects:
         singles = {}
-        for e in candidate_effects(current, vocabulary):
-            if (key := model_key(current + [e])) not in kept:
+        pool = candidate_effects(current, vocabulary)
+        skipped = screened(pool, white) if cost.screen else {}
+        if skipped:
+            say(f"not fitting {len(skipped)} candidate(s) that act only on white axes: {', '.join(skipped)}")
+        for e in pool:
+            if e not in skipped and (key := model_key(current + [e])) not in kept:
                 starts = warm_starts(current_map, current + [e], implied.get(e, {}))
                 cold = cold_starts(cost.cold_starts, current, e, changes)
                 singles[key] = task(current + [e], starts, cold=cold, nests=(current_res, current_map))
@@ -295,7 +306,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
                     current_res, current_map = again, again["map"]
                     if not steps:
                         base_fit, base = again_fit, again
-                        where = locate(base_fit, out)
+                        where = {**locate(base_fit, out), "white": white}
                     continue
         rows = rank(results, current_res, n_scored, n_fit, criterion)
         room = max_effects - (len(current) - len(base_effects))
@@ -311,7 +322,9 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
         for r in rows:
             r["step"] = len(steps) + 1
             r["added"] = [e for e in r["effect"].split("+") if e not in current]
-        all_rows += rows
+        all_rows += rows + [{"effect": model_key(current + [e]), "score": None, "score_se": None,
+                             "skipped": why, "step": len(steps) + 1, "added": [e]}
+                            for e, why in skipped.items()]  # fmt: skip
         choice = choose(rows, results, n_scored, n_fit, criterion)
         if choice is None:
             steps.append({"step": len(steps) + 1, "added": [],

@@ -36,7 +36,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from heli_uq.model.parameter import Parameter
+from heli_uq.model.parameter import AXES, Parameter
 from heli_uq.model.prior import Prior
 from heli_uq.model.terms.base import AbstractEffect, AbstractTorque
 from heli_uq.model.terms.rigid_body import GRAVITY_PARAMETERS, centre_of_mass, centre_of_mass_radius, weight
@@ -66,6 +66,10 @@ class AxisTilt(AbstractEffect, AbstractTorque):
 
     def reads(self):
         return GRAVITY_PARAMETERS
+
+    def acts_on(self) -> tuple[str, ...]:
+        """Both axes: the tilted potential varies with pitch and with yaw."""
+        return AXES
 
     def potential(self, p, x):
         """``P_tilt`` [J] at ``x = (theta, psi)`` (module docstring)."""

@@ -253,6 +253,14 @@ class AbstractEffect(AbstractTerm):
         """The full name of one of this effect's parameters."""
         return f"{bare}_{self.axis}"
 
+    def acts_on(self) -> tuple[str, ...]:
+        """The axes whose generalized force this effect changes directly: its own axis for a
+        torque on one axis; both for a map of a motor's voltage, since a motor drives both
+        axes through the gains ``K`` (a term whose torque has both components overrides
+        this).  Discovery fits no candidate whose axes the base model already fits to white
+        noise (:mod:`heli_uq.discovery.screen`)."""
+        return AXES if isinstance(self, AbstractInputMap) else (self.axis,)
+
     @property
     def label(self) -> str:
         return f"{self.kind}({self.axis})"

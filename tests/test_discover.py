@@ -356,6 +356,27 @@ def test_the_candidates_figure_shows_the_crps_gain_beside_the_score():
     assert ticks.get_xdata() == pytest.approx([margin, margin])
 
 
+def test_the_candidates_figure_lists_a_screened_candidate_without_a_bar():
+    """A candidate the white-residual screen left out has a row of its own, below the
+    fitted ones, with its reason and no bar; one with every candidate screened still
+    names each."""
+    from heli_uq.discovery.candidates_figure import candidates_figure
+
+    fitted = {"effect": "torque_offset", "axis": "yaw", "step": 1, "score": 24.0, "score_se": 5.0,
+              "passes": False}  # fmt: skip
+    screened = {"effect": "coulomb_friction", "axis": "pitch", "step": 1, "score": None, "score_se": None,
+                "skipped": "not fitted: ..."}  # fmt: skip
+    ax = candidates_figure([fitted, screened], 4000).axes[0]
+    assert [t.get_text() for t in ax.get_yticklabels()] == ["step 1: coulomb_friction (pitch)",
+                                                           "step 1: torque_offset (yaw)"]  # bottom-up
+    assert [bar.get_y() + bar.get_height() / 2 for bar in ax.patches] == [1.0]  # the fitted row only
+    notes = [t for t in ax.texts if t.get_text().strip().startswith("not fitted")]
+    assert [t.get_position()[1] for t in notes] == [0]
+    assert ax.get_ylim()[0] < 0 < 1 < ax.get_ylim()[1]  # both rows inside the axes
+    alone = candidates_figure([screened, dict(screened, axis="yaw")], 4000).axes[0]
+    assert len(alone.get_yticklabels()) == 2 and not alone.patches
+
+
 def test_the_report_names_candidates_closer_than_the_base_yet_scored_below_it():
     """A candidate whose held-out mean simulation is much closer (V < 0.8 x the base's) but
     whose score is negative is named (the rig's yaw friction + offset on 0-91 s); a closer

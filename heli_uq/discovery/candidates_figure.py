@@ -1,5 +1,6 @@
 """``candidates.png`` of a discovery run: each candidate's held-out score against the
-current model, per held-out sample, with its uncertainty and the decision margin, and
+current model, per held-out sample, with its uncertainty and the decision margin (a
+candidate the white-residual screen left out listed below, without a bar), and
 beside it the CRPS gain (:func:`heli_uq.discovery.score.block_crps`), so a candidate the
 two proper scores disagree on stands out.  The panel of the score that decided
 (``discover(score=...)``) carries the pass colours."""
@@ -30,8 +31,9 @@ def candidates_figure(cands: list[dict], n_scored: int, criterion: str = "log"):
     second panel for the CRPS gain when any row has one).
     """
     ok = [c for c in cands if c.get("score") is not None and np.isfinite(c["score"])]
+    skipped = [c for c in cands if c.get("skipped")]  # listed at the bottom, without a bar
     with_crps = any(c.get("crps_gain") is not None for c in ok)
-    fig = new_figure((14.0 if with_crps else 10.0, 1.5 + 0.3 * max(len(ok), 1)))
+    fig = new_figure((14.0 if with_crps else 10.0, 1.5 + 0.3 * max(len(ok) + len(skipped), 1)))
     if with_crps:
         ax, ax_crps = fig.subplots(1, 2, sharey=True, gridspec_kw={"width_ratios": (3, 2)})
     else:
@@ -49,7 +51,7 @@ def candidates_figure(cands: list[dict], n_scored: int, criterion: str = "log"):
     right = max(float(np.max((x + err)[x > -1.0], initial=0.0)), 5 * MARGIN_PER_SAMPLE)
     left = -max(right, 1.0)
     shown = np.clip(x, left, None)
-    y = np.arange(len(ok))
+    y = np.arange(len(ok)) + len(skipped)
     colors = ["C2" if c.get("passes") and c.get("supported", True) else "C1" if c.get("passes") else "0.6"
               for c in ok][::-1]
     by_crps = criterion == "crps" and with_crps
@@ -61,7 +63,12 @@ def candidates_figure(cands: list[dict], n_scored: int, criterion: str = "log"):
             bar.set_hatch("//")
             ax.text(left, bar.get_y() + bar.get_height() / 2, f" {value:.3g}", va="center",
                     fontsize="x-small")  # fmt: skip
-    ax.set_yticks(y, labels, fontsize="small")
+    for yi, c in enumerate(skipped[::-1]):
+        ax.text(left, yi, " not fitted: the base model's residuals are white on its axes",
+                va="center", fontsize="x-small", color="0.4")  # fmt: skip
+    ax.set_yticks(np.arange(len(skipped) + len(ok)), [label(c) for c in skipped[::-1]] + labels,
+                  fontsize="small")  # fmt: skip
+    ax.set_ylim(-0.6, len(skipped) + len(ok) - 0.4)
     ax.axvline(0, color="k", lw=0.8)
     ax.axvline(MARGIN_PER_SAMPLE, color="C3", ls="--", lw=0.8,
                label=f"margin {MARGIN_PER_SAMPLE} nats/sample")  # fmt: skip

@@ -8,7 +8,9 @@ From the base model's Laplace predictive over the fitting and held-out windows:
 * per candidate feature (the voltages, the rates, whether the axis is still, the angles),
   the share outside the band in quantile bins: structure against a feature points at the
   effects that act through it (e.g. misses concentrated where yaw is still point at
-  friction, misses that follow ``u_psi`` at a gain or dead band).
+  friction, misses that follow ``u_psi`` at a gain or dead band);
+* per axis, whether the residuals are white noise on every window
+  (:func:`~heli_uq.discovery.screen.white_axes`): nothing left there for a torque.
 
 Writes ``residuals.png`` (time, segments, features) and returns a JSON-able dict.
 """
@@ -19,6 +21,7 @@ import numpy as np
 
 from heli_uq.data.rates import measured_rates
 from heli_uq.discovery.score import input_blocks
+from heli_uq.discovery.screen import white_axes
 from heli_uq.figure import new_figure, save_figure
 
 __all__ = ["locate", "STILL_RATE", "N_BINS"]
@@ -93,7 +96,8 @@ def locate(fitted, out_dir=None) -> dict:
               for name, bins in by_feature.items() if bins}  # fmt: skip
     result = {"axis": axis, "error_ratio": {"theta": float(ratio[0]), "psi": float(ratio[1])},
               "windows": per_window, "segments": segments, "by_feature": by_feature,
-              "strongest_features": sorted(spread, key=lambda k: -spread[k])[:3]}  # fmt: skip
+              "strongest_features": sorted(spread, key=lambda k: -spread[k])[:3],
+              "white": white_axes(resid, windows, dt)}  # fmt: skip
     if out_dir is not None:
         fig = _figure(t, resid, outside, segments, by_feature, axis, windows)
         save_figure(fig, f"{out_dir}/residuals.png")

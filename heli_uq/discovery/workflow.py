@@ -76,7 +76,7 @@ from heli_uq.discovery.nesting import RESTART_NATS, beyond, carried, model_key, 
 from heli_uq.discovery.report import write_outputs
 from heli_uq.discovery.rounds import CandidateStore, run_round
 from heli_uq.discovery.score import CRITERIA, gain_text, gap_text
-from heli_uq.discovery.screen import screen_text, screened, white_axes
+from heli_uq.discovery.screen import screen_text, screened
 from heli_uq.discovery.sindy import rank_effects
 from heli_uq.errors import ParameterError
 from heli_uq.executor import check_scheduler
@@ -249,9 +249,8 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     n_scored = d - c  # held-out samples (the blocks tile the window)
     a, b = base_fit.start.problem.windows()["train"]
     n_fit = b - a
-    problem = base_fit.start.problem
-    white = white_axes(problem.y - np.nanmean(base_fit.y_sim, axis=0), problem.windows(), problem.dt)
-    where = {**locate(base_fit, out), "white": white}
+    where = locate(base_fit, out)
+    white = where["white"]  # the screen of every step: the first base fit's (a restart keeps it)
     say(f"base model: held-out {gap_text(base['score'])}; worst axis: {where['axis']}")
     say(f"residuals white on {' and '.join(a for a in AXES if white[a]['white']) or 'neither axis'} "
         f"({screen_text(white)})")  # fmt: skip

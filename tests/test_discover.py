@@ -270,9 +270,10 @@ def test_under_the_crps_the_decision_gives_the_crps_gain_first():
                            "the held-out CRPS; the best, yaw:deadband, scored a CRPS lower by 0.248")
 
 
-def test_cli_cold_starts_override_the_budget(tmp_path, monkeypatch):
-    """``--cold-starts N`` runs the chosen budget with N cold starts per candidate; without
-    it the budget is passed by name."""
+def test_cli_cold_starts_and_fit_all_override_the_budget(tmp_path, monkeypatch):
+    """``--cold-starts N`` runs the chosen budget with N cold starts per candidate,
+    ``--fit-all`` without the white-residual screen; without either the budget is passed by
+    name."""
     import heli_uq.discovery as discovery
     from heli_uq.discovery import BUDGETS
 
@@ -287,7 +288,9 @@ def test_cli_cold_starts_override_the_budget(tmp_path, monkeypatch):
     argv = ["discover", str(csv), "--budget", "full", "--cold-starts", "3", "--out", str(tmp_path / "a")]
     assert main(argv) == 0
     assert main(["discover", str(csv), "--out", str(tmp_path / "b")]) == 0
-    assert seen == [dataclasses.replace(BUDGETS["full"], cold_starts=3), "quick"]
+    assert main(["discover", str(csv), "--fit-all", "--cold-starts", "1", "--out", str(tmp_path / "c")]) == 0
+    assert seen == [dataclasses.replace(BUDGETS["full"], cold_starts=3), "quick",
+                    dataclasses.replace(BUDGETS["quick"], cold_starts=1, screen=False)]  # fmt: skip
 
 
 def test_the_crps_gain_is_ranked_beside_the_score_and_named_where_the_scores_disagree():

@@ -458,10 +458,11 @@ def test_an_unreachable_scheduler_is_one_clear_error_not_a_hang(monkeypatch):
     assert time.perf_counter() - t0 < UNREACHABLE_WAIT_S
 
 
-def test_tied_candidates_are_named_and_the_fitting_window_breaks_the_tie():
+def test_tied_candidates_are_named_and_the_whole_record_breaks_the_tie():
     """Two effects that score alike on held-out blocks are reported as tied, and the one
-    with the larger (BIC-penalised) log posterior on the fitting window is chosen; an
-    effect the best beats by the margin is not tied."""
+    with the larger whole-record support (BIC-penalised log posterior on the fitting
+    window plus held-out log score) is chosen; an effect the best beats by the margin is
+    not tied, however well it fits the fitting window."""
     from heli_uq.discovery.decide import choose
 
     n_scored, n_fit, blocks = 4000, 9000, 8
@@ -472,7 +473,7 @@ def test_tied_candidates_are_named_and_the_fitting_window_breaks_the_tie():
     c = base + per_block / 2  # a beats it by twice the margin; it still passes the base
     params = {"p": 0.0, "q": 0.0}
     results = {"yaw:x": {"block_scores": a, "map_value": -100.0, "map": {**params, "x": 1.0}},
-               "yaw:y": {"block_scores": b, "map_value": -104.0, "map": {**params, "y": 1.0}},
+               "yaw:y": {"block_scores": b, "map_value": -110.0, "map": {**params, "y": 1.0}},
                "yaw:z": {"block_scores": c, "map_value": -500.0, "map": {**params, "z": 1.0}}}  # fmt: skip
     rows = []
     for key, res in results.items():
@@ -480,14 +481,26 @@ def test_tied_candidates_are_named_and_the_fitting_window_breaks_the_tie():
         rows.append({"effect": key, "added": [key], "score": diff, "score_se": se,
                      "passes": passes(res["block_scores"], base, n_scored), "supported": True})  # fmt: skip
     assert all(r["passes"] for r in rows)
-    choice = choose(rows, results, n_scored, n_fit)
-    assert choice["effect"] == "yaw:y" and choice["chosen_by"] == "training fit"
+
+    def choice():
+        for r in rows:
+            r.pop("tied", None), r.pop("chosen_by", None), r.pop("tie_break", None)
+        return choose(rows, results, n_scored, n_fit)
+
+    # y leads by 10 nats on the fitting window, x by 8 on held-out blocks: y by 2
+    chosen = choice()
+    assert chosen["effect"] == "yaw:y" and chosen["chosen_by"] == "whole-record evidence"
+    assert chosen["tie_break"] == {"by": "support", "margin": pytest.approx(2.0)}
     assert [r["effect"] for r in rows if r.get("tied")] == ["yaw:x", "yaw:y"]
-    # one parameter more costs 0.5 log(n_fit) = 4.6 nats: the 4-nat lead is no longer enough
+    # one parameter more costs 0.5 log(n_fit) = 4.6 nats: the 10-nat lead is no longer enough
     results["yaw:y"]["map"]["y2"] = 0.0
-    for r in rows:
-        r.pop("tied", None), r.pop("chosen_by", None)
-    assert choose(rows, results, n_scored, n_fit)["effect"] == "yaw:x"
+    assert choice()["effect"] == "yaw:x"
+    # a fitting-window lead smaller than the held-out one does not decide (it did when the
+    # fitting window alone broke ties)
+    del results["yaw:y"]["map"]["y2"]
+    results["yaw:y"]["map_value"] = -104.0
+    chosen = choice()
+    assert chosen["effect"] == "yaw:x" and chosen["tie_break"]["margin"] == pytest.approx(4.0)
 
 
 def test_the_laplace_evidence_breaks_a_tie_when_every_tied_fit_has_it():
@@ -501,7 +514,7 @@ def test_the_laplace_evidence_breaks_a_tie_when_every_tied_fit_has_it():
     n_scored, n_fit, blocks = 4000, 9000, 8
     scores = np.full(blocks, 4 * MARGIN_PER_SAMPLE * n_scored / blocks)
     params = {"p": 0.0}
-    results = {"yaw:deadband": {"block_scores": scores + 0.1, "map_value": -1000.0, "log_evidence": 900.25,
+    results = {"yaw:deadband": {"block_scores": scores + 0.05, "map_value": -1000.0, "log_evidence": 900.25,
                                 "map": {**params, "delta": 0.3}},
                "yaw:torque_offset": {"block_scores": scores, "map_value": -1002.2, "log_evidence": 900.0,
                                      "map": {**params, "T_0": 0.03}}}  # fmt: skip
@@ -518,13 +531,13 @@ def test_the_laplace_evidence_breaks_a_tie_when_every_tied_fit_has_it():
     choice = choose(rows(), results, n_scored, n_fit)
     assert choice["effect"] == "yaw:deadband" and "chosen_by" not in choice
     assert choice["tie_break"]["by"] == "evidence"
-    assert choice["tie_break"]["margin"] == pytest.approx(0.25)
+    assert choice["tie_break"]["margin"] == pytest.approx(0.25 + blocks * 0.05)  # + the held-out lead
     text = tie_text({"tied": ["yaw:torque_offset"], "tie_break": choice["tie_break"]})
-    assert "0.25 nats" in text and "cannot tell them apart" in text
+    assert "0.65 nats" in text and "cannot tell them apart" in text
     del results["yaw:torque_offset"]["log_evidence"]  # a fit stored before the evidence was kept
     choice = choose(rows(), results, n_scored, n_fit)
-    assert choice["effect"] == "yaw:torque_offset" and choice["chosen_by"] == "training fit"
-    assert choice["tie_break"] == {"by": "support", "margin": pytest.approx(2.2)}
+    assert choice["effect"] == "yaw:torque_offset" and choice["chosen_by"] == "whole-record evidence"
+    assert choice["tie_break"] == {"by": "support", "margin": pytest.approx(2.2 - blocks * 0.05)}
     assert "cannot tell" not in tie_text({"tied": ["yaw:deadband"], "tie_break": choice["tie_break"]})
 
 

@@ -39,8 +39,8 @@ def candidates_figure(cands: list[dict], n_scored: int, criterion: str = "log"):
     else:
         ax = fig.add_subplot(1, 1, 1)
     def label(c):
-        tags = [t for t, on in (("tied", c.get("tied")), ("chosen by the fit window", c.get("chosen_by")))
-                if on]  # fmt: skip
+        tags = [t for t, on in (("tied", c.get("tied")),
+                                ("chosen by evidence", c.get("chosen_by"))) if on]
         return f"step {c['step']}: {c['effect']} ({c['axis']})" + (f" [{', '.join(tags)}]" if tags else "")
 
     labels = [label(c) for c in ok][::-1]

@@ -6,9 +6,11 @@ A model beats the current one if the deciding :class:`~heli_uq.discovery.score.C
 (:func:`~heli_uq.discovery.score.passes`): its block-score difference exceeds the
 calibrated margin and is significant.  Single effects
 the best one does not beat by that rule are *tied* with it (effects can act alike on a
-record: a dead band below every voltage used is a torque offset); the fitting window's
-Laplace evidence breaks the tie (the log posterior at the MAP, less a BIC penalty per
-parameter, for stored fits without it).  A pair must beat the best single by the same rule.
+record: a dead band below every voltage used is a torque offset); the whole record's
+evidence breaks the tie: the fitting window's Laplace evidence times the held-out
+window's predictive density, ``log p(y_fit) + log p(y_held | y_fit)`` (for stored fits
+without the evidence, the log posterior at the MAP less a BIC penalty per parameter in its
+place).  A pair must beat the best single by the same rule.
 
 A model is added only if the fitting window *supports* it too: its log posterior at the
 MAP, less a BIC penalty per parameter, exceeds the current model's (``supported``). An
@@ -118,10 +120,19 @@ def _training_support(result: dict, n_fit: int) -> float:
 
 
 def _tie_break_values(tied: list[dict], results: dict, n_fit: int) -> tuple[str, list[float]]:
-    """What breaks a tie among the rows ``tied``: ``("evidence", values)``, the fitting
-    window's Laplace evidence of each (``log_evidence`` [nats]) when every tied fit has it,
-    else ``("support", values)``, the BIC-penalised log posterior
-    (:func:`_training_support`; stored fits made before the evidence was kept).
+    """What breaks a tie among the rows ``tied``: ``("evidence", values)``, the whole
+    record's log evidence of each when every tied fit has the fitting window's
+    (``log_evidence`` [nats]), else ``("support", values)``, with the BIC-penalised log
+    posterior (:func:`_training_support`; stored fits made before the evidence was kept) in
+    its place.
+
+    By the chain rule ``log p(y) = log p(y_fit) + log p(y_held | y_fit)``: the fitting
+    window's evidence plus the held-out window's log predictive density, the sum of the
+    fit's ``block_scores``.  Tied rivals differ on held-out blocks by less than the margin,
+    but that difference is evidence too: on a staircase record hiding a pitch offset
+    (seed 302, no split, 2026-12-06) the offset, a pitch spring and a pitch quadratic thrust
+    were tied; the fitting window alone favoured the thrust by 2.0 nats, the held-out
+    window the offset by 3.9, and the whole record the offset by 1.9.
 
     Tied effects fit the data alike, so their log posteriors at the MAP differ mostly by
     the prior densities, which carry units: a dead band's ``delta`` [V] against an
@@ -130,21 +141,22 @@ def _tie_break_values(tied: list[dict], results: dict, n_fit: int) -> tuple[str,
     band, where the evidence favours the dead band by 0.25 and 0.05).  The evidence
     integrates the prior over the posterior's width, so it compares them in one unit."""
     fits = [results[r["effect"]] for r in tied]
+    held = [float(np.sum(f["block_scores"])) for f in fits]
     if all("log_evidence" in f for f in fits):
-        return "evidence", [float(f["log_evidence"]) for f in fits]
-    return "support", [_training_support(f, n_fit) for f in fits]
+        return "evidence", [float(f["log_evidence"]) + h for f, h in zip(fits, held)]
+    return "support", [_training_support(f, n_fit) + h for f, h in zip(fits, held)]
 
 
 def _break_ties(best: dict, passing: list[dict], results: dict, n_scored: int, n_fit: int,
                 criterion: Criterion) -> dict:  # fmt: skip
     """Among the passing rows that ``best`` does not beat by the margin (``passes``), the
-    one the fitting window supports most (:func:`_tie_break_values`).  Every tied row
-    gets ``tied: True``; the chosen one ``chosen_by: "training fit"`` if it is not
+    one the whole record supports most (:func:`_tie_break_values`).  Every tied row gets
+    ``tied: True``; the chosen one ``chosen_by: "whole-record evidence"`` if it is not
     ``best``, and ``tie_break``: ``{"by": "evidence" or "support", "margin": nats over
     the runner-up}`` (a margin under 1 nat is a Bayes factor under e: the record does not
-    tell the rivals apart).  Held-out blocks cannot separate effects that act alike on the
-    record (a dead band below every voltage used is a torque offset on the same motor's
-    axes); the fitting window is longer and breaks the tie, and the report names the
+    tell the rivals apart).  Held-out blocks alone cannot separate effects that act alike
+    on the record (a dead band below every voltage used is a torque offset on the same
+    motor's axes); the fitting window's evidence joins them, and the report names the
     rivals."""
     tied = [r for r in passing
             if r is best or not criterion.passes(results[best["effect"]], results[r["effect"]], n_scored)]
@@ -157,7 +169,7 @@ def _break_ties(best: dict, passing: list[dict], results: dict, n_scored: int, n
         r["tied"] = True
     chosen["tie_break"] = {"by": by, "margin": float(values[order[0]] - values[order[1]])}
     if chosen is not best:
-        chosen["chosen_by"] = "training fit"
+        chosen["chosen_by"] = "whole-record evidence"
     return chosen
 
 

@@ -67,8 +67,10 @@ def gap_warnings(before: dict, after: dict) -> list[str]:
 #: worth more than a bare mention" (Kass and Raftery 1995): the record does not tell the
 #: rivals apart.
 TIE_EVIDENCE_NATS = 1.0
-_TIE_BY = {"evidence": "the fitting window's Laplace evidence",
-           "support": "the fitting window's log posterior at the MAP, less a BIC penalty per parameter"}
+_TIE_BY = {"evidence": "the whole record's evidence (the fitting window's Laplace evidence and the "
+                       "held-out log score)",
+           "support": "the fitting window's log posterior at the MAP, less a BIC penalty per parameter, "
+                      "and the held-out log score"}
 
 
 def tie_text(step: dict) -> str:

@@ -43,8 +43,9 @@ Steps (the module of each in parentheses):
    :data:`~heli_uq.discovery.score.MARGIN_CRPS_FRACTION` of the current model's CRPS
    (:class:`~heli_uq.discovery.score.Criterion`).  Single effects that the best one does
    not beat by that margin are *tied* with it (effects can act alike on a record: a dead
-   band below every voltage used is a torque offset); the fitting window's Laplace
-   evidence breaks the tie, and the report names the rivals and says by how much.  A
+   band below every voltage used is a torque offset); the whole record's evidence (the
+   fitting window's Laplace evidence and the held-out log score) breaks the tie, and the
+   report names the rivals and says by how much.  A
    model must also be *supported* by the fitting window (its log posterior at the MAP,
    less a BIC penalty per parameter, above the current model's): an effect fitted to
    nothing can widen the predictive band and so score on held-out blocks where the

@@ -131,8 +131,9 @@ def _tie_break_values(tied: list[dict], results: dict, n_fit: int) -> tuple[str,
     fit's ``block_scores``.  Tied rivals differ on held-out blocks by less than the margin,
     but that difference is evidence too: on a staircase record hiding a pitch offset
     (seed 302, no split, 2026-12-06) the offset, a pitch spring and a pitch quadratic thrust
-    were tied; the fitting window alone favoured the thrust by 2.0 nats, the held-out
-    window the offset by 3.9, and the whole record the offset by 1.9.
+    were tied; the fitting window alone favoured the thrust by 2.0 nats over the offset,
+    the held-out window the offset by 3.9 over the thrust, and the whole record the offset
+    (by 1.9 over the thrust, 0.6 over the spring).
 
     Tied effects fit the data alike, so their log posteriors at the MAP differ mostly by
     the prior densities, which carry units: a dead band's ``delta`` [V] against an

@@ -357,6 +357,15 @@ def test_the_candidates_figure_shows_the_crps_gain_beside_the_score():
     (ticks,) = [line for line in crps_ax.lines if line.get_label().startswith("margin")]
     margin = MARGIN_CRPS_FRACTION * 992.0 / 0.35 / n  # 1 % of the current model's CRPS per sample
     assert ticks.get_xdata() == pytest.approx([margin, margin])
+    # gains of tens of microradians per sample are drawn in µrad, with no offset or exponent
+    tiny = [dict(r, crps_gain=g, crps_gain_se=s)
+            for r, g, s in zip(rows, (-0.027, 0.0992, None), (0.01, 0.01, None))]  # fmt: skip
+    fig = candidates_figure(tiny, n, "crps")
+    crps_ax = fig.axes[1]
+    assert "[µrad]" in crps_ax.get_xlabel()
+    assert [bar.get_width() for bar in crps_ax.patches] == pytest.approx([0.0992e6 / n, -0.027e6 / n])
+    fig.canvas.draw()
+    assert crps_ax.xaxis.get_offset_text().get_text() == ""
 
 
 def test_the_candidates_figure_lists_a_screened_candidate_without_a_bar():

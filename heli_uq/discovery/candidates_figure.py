@@ -97,19 +97,22 @@ def _crps_panel(ax, rows: list[dict], n_scored: int, y: np.ndarray, colors=None)
     has = np.asarray([r.get("crps_gain") is not None for r in rows])
     gain = np.asarray([r["crps_gain"] if h else 0.0 for r, h in zip(rows, has)]) / n_scored
     err = 2 * np.asarray([r["crps_gain_se"] if h else 0.0 for r, h in zip(rows, has)]) / n_scored
-    shade = "C0" if colors is None else np.asarray(colors, dtype=object)[has].tolist()
-    ax.barh(y[has], gain[has], color=shade, alpha=0.8 if colors is None else 1.0)
-    ax.errorbar(gain[has], y[has], xerr=err[has], fmt="none", ecolor="k", capsize=2)
     # the reference's CRPS per sample is the gain over its fraction
     fraction = np.asarray([r.get("crps_gain_fraction") or 0.0 if h else 0.0 for r, h in zip(rows, has)])
     known = has & (fraction != 0)
+    margin = MARGIN_CRPS_FRACTION * gain[known] / fraction[known]
+    scale, unit = _readable_unit(np.concatenate([np.abs(gain) + np.abs(err), np.abs(margin)]))
+    gain, err, margin = gain * scale, err * scale, margin * scale
+    shade = "C0" if colors is None else np.asarray(colors, dtype=object)[has].tolist()
+    ax.barh(y[has], gain[has], color=shade, alpha=0.8 if colors is None else 1.0)
+    ax.errorbar(gain[has], y[has], xerr=err[has], fmt="none", ecolor="k", capsize=2)
     if known.any():
-        margin = MARGIN_CRPS_FRACTION * gain[known] / fraction[known]
         ax.plot(margin, y[known], "|", color="C3", ms=10, mew=1.5, label="margin")
     for yi in y[~has]:
         ax.text(0, yi, " –", va="center", fontsize="x-small")
     ax.axvline(0, color="k", lw=0.8)
-    ax.set_xlabel("held-out CRPS of the current model minus\nthe candidate's, per sample [rad] (± 2 SE);\n"
+    ax.set_xlabel("held-out CRPS of the current model minus\nthe candidate's, per sample "
+                  f"[{unit}] (± 2 SE);\n"
                   f"red ticks: the margin, {MARGIN_CRPS_FRACTION:.1%} of the current CRPS")
     if colors is None:
         ax.set_title("CRPS gain (a second proper score;\nreported, does not decide)", loc="left",
@@ -120,3 +123,15 @@ def _crps_panel(ax, rows: list[dict], n_scored: int, y: np.ndarray, colors=None)
 
     ax.xaxis.set_major_locator(MaxNLocator(nbins=4))  # the panel is narrow: 5-digit labels overlap
     ax.grid(True, axis="x", alpha=0.4)
+
+
+#: Units the CRPS panel may be drawn in, as (factor from rad, name).
+_ANGLE_UNITS = ((1.0, "rad"), (1e3, "mrad"), (1e6, "µrad"))
+
+
+def _readable_unit(extent: np.ndarray) -> tuple[float, str]:
+    """The largest of :data:`_ANGLE_UNITS` in which the panel's largest extent [rad] is at
+    least 0.1, so its tick labels need no offset or exponent (a "1e-5" over the axis
+    collided with the panel's label)."""
+    top = float(np.max(extent, initial=0.0))
+    return next((u for u in _ANGLE_UNITS if top * u[0] >= 0.1), _ANGLE_UNITS[-1])

@@ -355,7 +355,7 @@ def test_the_candidates_figure_shows_the_crps_gain_beside_the_score():
     assert [bar.get_facecolor() for bar in crps_ax.patches] == [green, grey]
     assert len({bar.get_facecolor() for bar in score_ax.patches}) == 1  # the log density's: reported
     (ticks,) = [line for line in crps_ax.lines if line.get_label().startswith("margin")]
-    margin = MARGIN_CRPS_FRACTION * 992.0 / 0.35 / n  # 1 % of the current model's CRPS per sample
+    margin = MARGIN_CRPS_FRACTION * 992.0 / 0.35 / n  # that fraction of the current model's CRPS per sample
     assert ticks.get_xdata() == pytest.approx([margin, margin])
     # gains of tens of microradians per sample are drawn in µrad, with no offset or exponent
     tiny = [dict(r, crps_gain=g, crps_gain_se=s)

@@ -231,6 +231,35 @@ def test_a_window_the_band_misses_is_a_note_not_a_flag():
     assert len(notes) == 1 and "99 % of the train window's theta" in notes[0] and "wider" in notes[0]
 
 
+def test_an_initial_angle_far_from_its_prior_is_a_note():
+    """The distance of each sampled initial angle's posterior mean from its normal prior's
+    centre, in prior sd, from the draws; beyond START_PRIOR_SDS a note names the angle and
+    says model error, the run stays healthy; a fixed angle or a rate is not judged."""
+    import arviz as az
+
+    from heli_uq.model import Prior
+    from heli_uq.output.diagnostics import start_distances
+    from heli_uq.output.health import START_PRIOR_SDS, check_health
+
+    rng = np.random.default_rng(0)
+    psi0 = 0.458 + 0.017 * rng.standard_normal((2, 500))  # the rig's mechanistic posterior
+    theta0 = -0.667 + 0.008 * rng.standard_normal((2, 500))
+    idata = az.from_dict(posterior={"psi0": psi0, "theta0": theta0, "omega_psi0": psi0})
+    priors = {"theta0": Prior("normal", -0.66698, 0.05), "psi0": Prior("normal", 0.81165, 0.05),
+              "omega_psi0": Prior("normal", 0.0, 0.01)}  # fmt: skip
+    got = start_distances(idata, priors)
+    assert set(got) == {"theta0", "psi0"}
+    assert got["psi0"]["prior_sds"] == pytest.approx(abs(psi0.mean() - 0.81165) / 0.05)
+    assert got["psi0"]["prior_sds"] > START_PRIOR_SDS > got["theta0"]["prior_sds"]
+    health = check_health({**HEALTHY, "start_distances": got})
+    assert health["ok"] and health["warnings"] == []
+    assert len(health["notes"]) == 1
+    assert health["notes"][0].startswith(f"psi0's posterior mean {psi0.mean():.3g} rad lies "
+                                         f"{got['psi0']['prior_sds']:.1f} prior sd")
+    assert "model error" in health["notes"][0]
+    assert start_distances(idata, {**priors, "psi0": Prior("fixed", 0.81165)}).keys() == {"theta0"}
+
+
 @pytest.mark.parametrize("needle", list(FAILURES))
 def test_health_flags_each_failed_check(needle):
     from heli_uq.output.health import check_health

@@ -23,6 +23,7 @@ from heli_uq.probability.likelihood import loss_v
 from heli_uq.simulation.physical import unphysical_draws as _unphysical
 
 __all__ = ["RHAT_MAX", "ESS_MIN", "BFMI_MIN", "convergence", "draws_converged", "predictive_metrics",
+           "start_distances",
            "predictive_checks",
            "summarize",
            "unphysical_draws", "summary_table"]
@@ -211,6 +212,34 @@ def unphysical_draws(idata) -> dict:
     y_sim = np.asarray(idata.posterior_predictive["y_sim"])
     bad = _unphysical(y_sim.reshape((-1,) + y_sim.shape[2:]))
     return {"count": int(bad.sum()), "of": int(bad.size)}
+
+
+def start_distances(idata, priors: dict) -> dict:
+    """How far the posterior of each initial angle sits from its prior, for the health
+    check's note on a model that cannot start where the record does.
+
+    Parameters
+    ----------
+    idata : arviz.InferenceData
+        With ``theta0`` and ``psi0`` [rad] in its posterior where they were sampled.
+    priors : dict of str to Prior
+        The initial state's priors by name (:meth:`heli_uq.probability.Problem.x0_priors`).
+
+    Returns
+    -------
+    dict
+        Per sampled angle with a normal prior: ``posterior_mean`` [rad], ``prior_mean``,
+        ``prior_sd`` [rad] and ``prior_sds``, the distance in prior standard deviations.
+    """
+    out = {}
+    for name in ("theta0", "psi0"):
+        prior = priors.get(name)
+        if name not in idata.posterior or prior is None or prior.kind != "normal":
+            continue
+        mean = float(idata.posterior[name].mean())
+        out[name] = {"posterior_mean": mean, "prior_mean": float(prior.a), "prior_sd": float(prior.b),
+                     "prior_sds": abs(mean - float(prior.a)) / float(prior.b)}  # fmt: skip
+    return out
 
 
 def summarize(idata, *, wall_seconds: float | None = None) -> dict:

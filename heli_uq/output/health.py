@@ -21,7 +21,9 @@ with the measured value and the limit.  Checks, and the flag they raise:
   run stopped by its time limit with fewer draws than asked for (the checks above judge
   the draws it made); a window whose 90 % predictive band covers a share of its samples
   outside :data:`COVERAGE90_RANGE` (model error, not a sampler fault: the checks above
-  judge whether the posterior was computed right, this one whether the model fits).
+  judge whether the posterior was computed right, this one whether the model fits); an
+  initial angle whose posterior lies more than :data:`START_PRIOR_SDS` prior sd from its
+  prior's centre (the model cannot start where the record does).
 * **unphysical**: posterior-predictive draws whose simulation leaves the physical range
   (:mod:`heli_uq.simulation.physical`: |pitch| > 90 deg or non-finite); the fixed-step
   solver off the adaptive reference by more than the tolerance; draws stiffer than the
@@ -42,7 +44,7 @@ from heli_uq.output.divergences import divergence_text
 
 __all__ = ["check_health", "format_warnings", "TREE_DEPTH_SATURATION_MAX", "STEP_SIZE_MIN",
            "STEP_SIZE_RATIO_MIN", "MAP_DECREMENT_MAX", "MAP_STARTS_ONLY", "UNCONVERGED",
-           "COVERAGE90_RANGE", "UNPHYSICAL"]  # fmt: skip
+           "COVERAGE90_RANGE", "START_PRIOR_SDS", "UNPHYSICAL"]  # fmt: skip
 
 #: Largest fraction of draws at the tree-depth limit: more means the trajectories are cut
 #: short (a collapsed step size or a ridge), and the chain explores by a random walk.
@@ -65,6 +67,13 @@ MAP_STARTS_ONLY = ("nuts", "emcee")
 #: than the data need.  Autocorrelated residuals make a window's coverage vary more than
 #: a binomial's, hence a range, not a test.
 COVERAGE90_RANGE = (0.80, 0.97)
+#: An initial angle whose posterior mean lies more than this many prior standard
+#: deviations from its prior's centre is noted (:func:`heli_uq.output.diagnostics.start_distances`):
+#: the default prior is centred on the record's first sample, whose noise is a few mrad
+#: against the prior's 50, so a model that fits its start sits well inside it; the
+#: mechanistic model on the rig record puts ``psi0`` 7 sd away, because it cannot hold the
+#: still yaw of the first 17 s and the likelihood draws a line through it.
+START_PRIOR_SDS = 4.0
 UNCONVERGED = "UNCONVERGED"
 UNPHYSICAL = "unphysical"
 
@@ -159,6 +168,18 @@ def _coverage_notes(s: dict) -> list[str]:
     return out
 
 
+def _start_notes(s: dict) -> list[str]:
+    out = []
+    for name, d in (s.get("start_distances") or {}).items():
+        if not d["prior_sds"] > START_PRIOR_SDS:
+            continue
+        out.append(f"{name}'s posterior mean {d['posterior_mean']:.3g} rad lies {d['prior_sds']:.1f} "
+                   f"prior sd from its prior's centre {d['prior_mean']:.3g} rad (sd {d['prior_sd']:.2g}, "
+                   "the record's first sample by default): the model cannot start where the record "
+                   "does, and the data outweigh the prior there: model error")  # fmt: skip
+    return out
+
+
 def check_health(summary: dict, *, solver_tol: float | None = None) -> dict:
     """``{"ok": bool, "flags": [...], "warnings": [...], "notes": [...]}`` of a
     ``summary.json`` record (``notes``: reported, not failed; module docstring).
@@ -191,6 +212,7 @@ def check_health(summary: dict, *, solver_tol: float | None = None) -> dict:
         notes.append(f"its warm-up was cut from {cut_from} to {summary.get('warmup')} iterations, step size "
                      "only, to leave time for its draws before the time limit")  # fmt: skip
     notes.extend(_coverage_notes(summary))
+    notes.extend(_start_notes(summary))
     return {"ok": not flags, "flags": flags, "warnings": sampler + physical, "notes": notes}
 
 

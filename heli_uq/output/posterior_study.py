@@ -37,7 +37,7 @@ from heli_uq.log import progress_log
 from heli_uq.model.heli_model import HeliModel
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.model.terms.rigid_body import pitch_inertia, yaw_inertia
-from heli_uq.output.diagnostics import draws_converged, summarize, summary_table
+from heli_uq.output.diagnostics import draws_converged, start_distances, summarize, summary_table
 from heli_uq.output.health import check_health
 from heli_uq.output.inference_data import save_netcdf, to_inference_data
 from heli_uq.output.last_layer import NETWORK_POSTERIORS, last_layer_setup
@@ -277,6 +277,7 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     summary = summarize(idata, wall_seconds=None)
     summary["parameters"] = parameter_summary(idata, problem.model, problem)
     summary["initial_state_priors"] = {n: p.describe() for n, p in zip(X0_NAMES, problem.x0_priors())}
+    summary["start_distances"] = start_distances(idata, dict(zip(X0_NAMES, problem.x0_priors())))
     summary["solver_error_rad"], summary["stiffness"] = _solver_check(problem, idata)
     if summary["solver_error_rad"] is not None and not summary["solver_error_rad"] <= SOLVER_TOL:
         logging.getLogger(__name__).warning(

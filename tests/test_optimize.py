@@ -450,3 +450,37 @@ def test_a_start_too_stiff_for_the_substeps_is_fitted_again_with_more():
     start = prepare_start(problem, n_starts=1, guesses=[stiff])
     assert np.isfinite(start.map_value)
     assert start.problem.substeps >= need
+
+
+def test_the_nested_fallback_is_fitted_at_its_starts_substeps_without_the_grid(monkeypatch):
+    """The fallback from "effect off" restarts the current model's fit, so it is built at
+    the substeps that fit needs (it climbed to 11 from 1 through a failed least-squares
+    start, 12 s, and a dead band's grid screen, 21 s, of a 205 s candidate fit on a stiff
+    pitch friction record; 2026-12-06) and without the grid's start, which would look for
+    another basin."""
+    import heli_uq.discovery.candidates as candidates
+    from heli_uq.inference.start import guess_substeps, prepare_start, required_substeps
+    from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model
+    from heli_uq.probability import make_problem
+    from heli_uq.simulation import synthetic_experiment
+
+    rec = synthetic_experiment(RIG_FIT, RIG_FIT_X0, duration=1.0, inputs="rig_steps", seed=5,
+                               noise_std=(0.003, 0.008))  # fmt: skip
+    stiff = {**RIG_FIT, "D_theta": STIFF_DAMPING}
+    effects = ["pitch:deadband"]
+    nested = make_problem(rec, model=build_model(effects), error="iid", substeps=1)
+    off = candidates.off_start(stiff, effects)
+    need = required_substeps(nested, off)
+    assert need > 1 and guess_substeps(nested, [off, RIG_FIT]) == need
+    calls = []
+
+    def spy(problem, **kw):
+        calls.append((kw["guesses"] == (off,), problem.substeps, kw["grid"]))
+        return prepare_start(problem, **kw)
+
+    monkeypatch.setattr(candidates, "prepare_start", spy)
+    task = candidates.FitTask(rec, (0.0, 1.0), None, tuple(effects), ({**stiff, "delta_pitch": 5.0},),
+                              0, 1, 8, off=off, floor=-np.inf)  # every start is above: the fallback runs
+    start, from_off = candidates._nested_map(nested, task)
+    assert calls == [(False, 1, True), (True, need, False)]
+    assert np.isfinite(start.map_value)

@@ -55,6 +55,7 @@ from heli_uq.simulation.stiffness import (
 )
 
 __all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "startable", "initial_draws",
+           "guess_substeps",
            "whitening", "TAIL_DRAWS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
            "NETWORK_MAP_DECREMENT_MAX", "PoorBasin"]  # fmt: skip
 
@@ -127,7 +128,7 @@ def startable(problem: Problem, guess: dict) -> dict:
 
 
 def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, guesses=(), *,
-               log=None) -> list:  # fmt: skip
+               grid: bool = True, log=None) -> list:  # fmt: skip
     """Starting points (flat vectors) of the MAP, each refined by :func:`least_squares_fit`.
 
     Each guess is fitted twice, the second time with the residual scales of the first fit
@@ -137,7 +138,9 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
     names, and values on a bound of a free parameter's support (:func:`startable`), take
     the model's start values), then the model's start values (Table 1 for the
     mechanics), its defaults where valid (Table 2) and ``n - 2`` perturbations; for a
-    model whose terms declare a start grid, one more from :func:`grid_start`.  After the
+    model whose terms declare a start grid, one more from :func:`grid_start` (unless
+    ``grid`` is False: a refit from a given start, e.g. discovery's nested fallback, wants
+    that start's basin, not another).  After the
     least-squares stage the residual scale starts at the residual RMS and the AR(1)
     correlation time at the one of the residuals' lag-1 autocorrelation, so the MAP search
     starts close to its optimum.
@@ -158,7 +161,7 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
     warm = [on_scale({**start, **startable(problem, g)}, fixed) for g in guesses][:n]
     starts = warm + start_parameters(coords.free, base, n, seed, alternative=alternative,
                                      linear=linear)[: max(n - len(warm), 0)]  # fmt: skip
-    screened = grid_start(problem, starts[0], log=log)
+    screened = grid_start(problem, starts[0], log=log) if grid else None
     starts += [screened] if screened is not None else []
     y = problem.y[: problem.n_train]
     for k, params in enumerate(starts):
@@ -290,7 +293,7 @@ def tail_substeps(problem: Problem, density: LogDensity, x_map, cov, seed: int =
 def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
                   map_maxiter: int = 0, guesses=(), newton_steps: int | None = None,
                   polish_best: int | None = None, abandon_above: float | None = None,
-                  log=None) -> Start:  # fmt: skip
+                  grid: bool = True, log=None) -> Start:  # fmt: skip
     """Multi-start MAP, substeps check and Laplace covariance (module docstring).
 
     ``guesses``: parameter dicts tried first (see :func:`map_starts`); ``n_starts`` counts
@@ -310,6 +313,7 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
     substeps are raised and the Laplace covariance is computed (a caller with a better fit
     in hand, e.g. a nested model's, saves that work; in discovery it was 60-90 % of a
     stiff candidate's fit).
+    ``grid``: add the start grid's start (see :func:`map_starts`).
     ``log``: called with a progress line per least-squares start.
 
     If no start simulates the record after its least-squares fit (each fit moved into a
@@ -330,13 +334,13 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
         newton_steps = NETWORK_NEWTON_STEPS if network else NEWTON_STEPS
         polish_best = 1 if network and polish_best is None else polish_best
     density = log_density_setup(problem, seed=seed)
-    starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, log=log)
+    starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, grid=grid, log=log)
     while not starts and problem.substeps < MAX_SUBSTEPS:  # every fit left a model too stiff
         problem = problem.with_substeps(_retry_substeps(problem, guesses))
         if log is not None:
             log(f"no MAP start simulates the record: again at {problem.substeps} solver substeps")
         density = log_density_setup(problem, seed=seed)
-        starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, log=log)
+        starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, grid=grid, log=log)
     if not starts:
         raise ParameterError(
             "no MAP start simulates the record: the least-squares fit of every start gave a "
@@ -380,14 +384,23 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
                  NETWORK_MAP_DECREMENT_MAX if network else MAP_DECREMENT_MAX)  # fmt: skip
 
 
+def guess_substeps(problem: Problem, guesses) -> int:
+    """Substeps the stiffest of ``guesses`` (dicts of physical values; names the model
+    lacks are ignored) needs on the fitting window, at least ``problem.substeps``, at most
+    :data:`MAX_SUBSTEPS`: for a problem refitted from a known fit, e.g. discovery's nested
+    fallback from the current model's MAP, which would otherwise climb to them from one
+    substep, a Newton polish at each doubling."""
+    names = problem.model.start_values()
+    need = [required_substeps(problem, {k: float(v) for k, v in g.items() if k in names})
+            for g in guesses]  # fmt: skip
+    return min(max([problem.substeps, *need]), MAX_SUBSTEPS)
+
+
 def _retry_substeps(problem: Problem, guesses) -> int:
     """Substeps for another try when no MAP start simulated: the stiffness of the guesses
     (a fit of a nearby model, e.g. on a shorter window, may need more than the model's
     start values), at least twice the current number, at most :data:`MAX_SUBSTEPS`."""
-    names = problem.model.start_values()
-    need = [required_substeps(problem, {k: float(v) for k, v in g.items() if k in names})
-            for g in guesses]  # fmt: skip
-    return min(max([2 * problem.substeps, *need]), MAX_SUBSTEPS)
+    return min(max(2 * problem.substeps, guess_substeps(problem, guesses)), MAX_SUBSTEPS)
 
 
 def _full_z(problem: Problem, sites: dict):

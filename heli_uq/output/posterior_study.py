@@ -276,8 +276,9 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
     problem = run.problem
     summary = summarize(idata, wall_seconds=None)
     summary["parameters"] = parameter_summary(idata, problem.model, problem)
-    summary["initial_state_priors"] = {n: p.describe() for n, p in zip(X0_NAMES, problem.x0_priors())}
-    summary["start_distances"] = start_distances(idata, dict(zip(X0_NAMES, problem.x0_priors())))
+    x0_priors = dict(zip(X0_NAMES, problem.x0_priors()))
+    summary["initial_state_priors"] = {n: p.describe() for n, p in x0_priors.items()}
+    summary["start_distances"] = start_distances(idata, x0_priors)
     summary["solver_error_rad"], summary["stiffness"] = _solver_check(problem, idata)
     if summary["solver_error_rad"] is not None and not summary["solver_error_rad"] <= SOLVER_TOL:
         logging.getLogger(__name__).warning(

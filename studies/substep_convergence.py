@@ -74,7 +74,7 @@ BASELINE = "none"
 #: Substep counts compared.
 SUBSTEPS = (1, 2, 4, 8, 16)
 #: Margin of the stiffness-based substep count (the MAP stage used 2 until 2026-11-28; it
-#: now covers the Laplace draws, :data:`heli_uq.inference.start.TAIL_DRAWS`).
+#: now covers the Laplace draws, :data:`heli_uq.inference.substeps.TAIL_DRAWS`).
 MARGIN = 2.0
 #: Timed forward solves per substep count (median reported).
 REPEATS = 5

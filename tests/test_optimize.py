@@ -436,7 +436,8 @@ def test_a_start_too_stiff_for_the_substeps_is_fitted_again_with_more():
     values: ``discover``'s whole-record refit of its base model stopped with "no MAP start
     simulates the record" at 1 substep where its guess needs 3 (2026-12-05).  The starts
     are now fitted again with the substeps the guess needs."""
-    from heli_uq.inference.start import prepare_start, required_substeps
+    from heli_uq.inference.start import prepare_start
+    from heli_uq.inference.substeps import required_substeps
     from heli_uq.model import RIG_FIT, RIG_FIT_X0
     from heli_uq.probability import make_problem
     from heli_uq.simulation import synthetic_experiment
@@ -459,7 +460,8 @@ def test_the_nested_fallback_is_fitted_at_its_starts_substeps_without_the_grid(m
     pitch friction record; 2026-12-06) and without the grid's start, which would look for
     another basin."""
     import heli_uq.discovery.candidates as candidates
-    from heli_uq.inference.start import guess_substeps, prepare_start, required_substeps
+    from heli_uq.inference.start import prepare_start
+    from heli_uq.inference.substeps import guess_substeps, required_substeps
     from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model
     from heli_uq.probability import make_problem
     from heli_uq.simulation import synthetic_experiment

@@ -10,7 +10,7 @@ from the current MAP with the new effect switched off (:func:`off_start`), which
 from the current model's fit and can only improve on it, and the better MAP is kept (a
 start :data:`ABANDON_NATS` above is given up before its costly finish).  The fallback is
 built at the solver substeps the current fit needs and without a start grid's extra start
-(:func:`heli_uq.inference.start.guess_substeps`): it restarts that fit, so it need not
+(:func:`heli_uq.inference.substeps.guess_substeps`): it restarts that fit, so it need not
 climb to them from one substep (on a stiff pitch friction record a dead band's fallback
 took 93 s instead of 133 s, to the same MAP).  It
 then draws the Laplace approximation at the MAP, resamples the draws by their importance
@@ -46,7 +46,8 @@ from heli_uq.discovery.score import MIN_BLOCKS, block_crps, block_scores, gap_me
 from heli_uq.errors import ParameterError
 from heli_uq.inference import constrain_draws, importance_resample, prepare_start
 from heli_uq.inference.laplace_sampler import PARETO_K_MAX
-from heli_uq.inference.start import PoorBasin, guess_substeps
+from heli_uq.inference.start import PoorBasin
+from heli_uq.inference.substeps import guess_substeps
 from heli_uq.model import AXES, RIG_FIT, X0_NAMES, build_model
 from heli_uq.model.prior import Prior
 from heli_uq.output.inference_data import simulate_draws

@@ -13,7 +13,7 @@ covariance, and the number of solver substeps the fitted parameters need.
    fitted level; if the MAP needs more than the problem has, the problem is rebuilt with
    them and the MAP polished again.
 4. **Laplace covariance** at the MAP; then the substeps are checked once more against the
-   stiffness of :data:`TAIL_DRAWS` Laplace draws
+   stiffness of :data:`~heli_uq.inference.substeps.TAIL_DRAWS` Laplace draws
    (:func:`heli_uq.simulation.stiffness.substeps_covering`), so that the posterior's draws,
    not only its mode, are simulated accurately; if they need more, the MAP is polished and
    the covariance computed again.  (Until 2026-11-28 the MAP's stiffness times 2 decided:
@@ -43,26 +43,16 @@ from heli_uq.inference.error_start import error_start, residual_rms
 from heli_uq.inference.gaussian import gaussian_draws
 from heli_uq.inference.least_squares import grid_start, least_squares_fit, x0_guess
 from heli_uq.inference.map import NEWTON_STEPS, find_map, laplace, leave_saddles, newton_polish
+from heli_uq.inference.substeps import TAIL_DRAWS, required_substeps, retry_substeps, tail_substeps
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.probability.problem import Problem
-from heli_uq.simulation.stiffness import (
-    MAX_SUBSTEPS,
-    capped_substeps,
-    default_substeps,
-    stiffness_rates,
-    substeps_covering,
-)
+from heli_uq.simulation.stiffness import MAX_SUBSTEPS, capped_substeps
 
 __all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "startable", "initial_draws",
-           "guess_substeps",
-           "whitening", "TAIL_DRAWS", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
+           "whitening", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
            "NETWORK_MAP_DECREMENT_MAX", "PoorBasin"]  # fmt: skip
 
-#: Laplace draws (seeded) whose stiffness the substeps must cover (their maximum is about
-#: the 99.8 % quantile of the rate).  The output stage checks every posterior draw again
-#: (:func:`heli_uq.simulation.stiffness.stiffness_check`).
-TAIL_DRAWS = 256
 #: Newton steps of the MAP of a model with a neural term.  Its posterior is not convex (the
 #: weights' symmetries, flat directions where the prior dominates), so the decrement falls
 #: slowly and rarely reaches NEWTON_TOL; each step costs 2 d gradients (d ~ 30-150), so
@@ -274,22 +264,6 @@ def whitening(start_info: dict) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(start_info["x_map"], dtype=float), np.linalg.cholesky(0.5 * (cov + cov.T))
 
 
-def required_substeps(problem: Problem, params: dict) -> int:
-    """Substeps the model needs at ``params`` on the fitting window."""
-    return default_substeps(problem.model, params, problem.dt, thetas=problem.y[: problem.n_train, 0])
-
-
-def tail_substeps(problem: Problem, density: LogDensity, x_map, cov, seed: int = 0) -> int:
-    """Substeps that cover the stiffness of :data:`TAIL_DRAWS` draws of ``N(x_map, cov)``
-    (the sampler's unconstrained coordinates) on the fitting window."""
-    rng = np.random.default_rng(seed)
-    x = gaussian_draws(x_map, cov, TAIL_DRAWS, rng)
-    draws = constrain_draws(density, x)
-    fixed = {k: float(p.a) for k, p in problem.priors.params.items() if not p.free}
-    rates = stiffness_rates(problem.model, draws, fixed=fixed, thetas=problem.y[: problem.n_train, 0])
-    return substeps_covering(rates[np.isfinite(rates)], problem.dt)
-
-
 def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
                   map_maxiter: int = 0, guesses=(), newton_steps: int | None = None,
                   polish_best: int | None = None, abandon_above: float | None = None,
@@ -318,7 +292,8 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
 
     If no start simulates the record after its least-squares fit (each fit moved into a
     model too stiff for the problem's substeps), the starts are fitted again with more
-    substeps (:func:`_retry_substeps`), up to :data:`~heli_uq.simulation.stiffness.MAX_SUBSTEPS`.
+    substeps (:func:`~heli_uq.inference.substeps.retry_substeps`), up to
+    :data:`~heli_uq.simulation.stiffness.MAX_SUBSTEPS`.
 
     Raises
     ------
@@ -336,7 +311,7 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
     density = log_density_setup(problem, seed=seed)
     starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, grid=grid, log=log)
     while not starts and problem.substeps < MAX_SUBSTEPS:  # every fit left a model too stiff
-        problem = problem.with_substeps(_retry_substeps(problem, guesses))
+        problem = problem.with_substeps(retry_substeps(problem, guesses))
         if log is not None:
             log(f"no MAP start simulates the record: again at {problem.substeps} solver substeps")
         density = log_density_setup(problem, seed=seed)
@@ -382,25 +357,6 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
     return Start(problem, density, np.asarray(x_map), float(value), cov, time.perf_counter() - t0,
                  float(grad_max), float(decrement),
                  NETWORK_MAP_DECREMENT_MAX if network else MAP_DECREMENT_MAX)  # fmt: skip
-
-
-def guess_substeps(problem: Problem, guesses) -> int:
-    """Substeps the stiffest of ``guesses`` (dicts of physical values; names the model
-    lacks are ignored) needs on the fitting window, at least ``problem.substeps``, at most
-    :data:`MAX_SUBSTEPS`: for a problem refitted from a known fit, e.g. discovery's nested
-    fallback from the current model's MAP, which would otherwise climb to them from one
-    substep, a Newton polish at each doubling."""
-    names = problem.model.start_values()
-    need = [required_substeps(problem, {k: float(v) for k, v in g.items() if k in names})
-            for g in guesses]  # fmt: skip
-    return min(max([problem.substeps, *need]), MAX_SUBSTEPS)
-
-
-def _retry_substeps(problem: Problem, guesses) -> int:
-    """Substeps for another try when no MAP start simulated: the stiffness of the guesses
-    (a fit of a nearby model, e.g. on a shorter window, may need more than the model's
-    start values), at least twice the current number, at most :data:`MAX_SUBSTEPS`."""
-    return min(max(2 * problem.substeps, guess_substeps(problem, guesses)), MAX_SUBSTEPS)
 
 
 def _full_z(problem: Problem, sites: dict):

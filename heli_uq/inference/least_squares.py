@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from heli_uq.inference.levenberg import masked_least_squares
+from heli_uq.model.tables import X0_NAMES
 from heli_uq.probability.likelihood import whitened_residuals
 from heli_uq.probability.problem import Problem
 
@@ -69,10 +70,18 @@ def least_squares_fit(problem: Problem, *, max_steps: int = 100):
     return fit
 
 
-def x0_guess(problem: Problem) -> np.ndarray:
-    """The initial-state priors' centres: the first measured angles and the record's
-    initial rates by default (:attr:`Problem.record_start`), a fixed value where fixed."""
-    return np.array([prior.a for prior in problem.x0_priors()])
+def x0_guess(problem: Problem, guess: dict | None = None) -> np.ndarray:
+    """The initial state (4,) a least-squares fit starts from: the initial-state priors'
+    centres (the first measured angles and the record's initial rates by default,
+    :attr:`Problem.record_start`; a fixed value where fixed), or, for a free entry that
+    ``guess`` (physical values by name, e.g. a fit of a nearby model) carries as a finite
+    number, that value."""
+    guess = {} if guess is None else guess
+    out = []
+    for name, prior in zip(X0_NAMES, problem.x0_priors()):
+        value = float(guess.get(name, np.nan)) if prior.free else np.nan
+        out.append(value if np.isfinite(value) else prior.a)
+    return np.array(out)
 
 
 def grid_start(problem: Problem, params: dict, *, log=None) -> dict | None:

@@ -41,7 +41,7 @@ from heli_uq.errors import ParameterError
 from heli_uq.inference.density import LogDensity, constrain_draws, init_sites, log_density_setup
 from heli_uq.inference.error_start import error_start, residual_rms
 from heli_uq.inference.gaussian import gaussian_draws
-from heli_uq.inference.least_squares import grid_start, least_squares_fit, x0_guess
+from heli_uq.inference.least_squares import LSQ_SIGMA, grid_start, least_squares_fit, x0_guess
 from heli_uq.inference.map import NEWTON_STEPS, find_map, laplace, leave_saddles, newton_polish
 from heli_uq.inference.substeps import TAIL_DRAWS, required_substeps, retry_substeps, tail_substeps
 from heli_uq.model.tables import X0_NAMES
@@ -51,7 +51,7 @@ from heli_uq.simulation.stiffness import MAX_SUBSTEPS, capped_substeps
 
 __all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "startable", "initial_draws",
            "whitening", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
-           "NETWORK_MAP_DECREMENT_MAX", "PoorBasin"]  # fmt: skip
+           "NETWORK_MAP_DECREMENT_MAX", "RESCALE_RTOL", "PoorBasin"]  # fmt: skip
 
 #: Newton steps of the MAP of a model with a neural term.  Its posterior is not convex (the
 #: weights' symmetries, flat directions where the prior dominates), so the decrement falls
@@ -66,6 +66,9 @@ MAP_DECREMENT_MAX = 1e-3
 #: The same for a model with a neural term, whose capped polish stops short of the optimum
 #: (within ~1 posterior sd): its MAP only starts NUTS, which adapts its mass matrix.
 NETWORK_MAP_DECREMENT_MAX = 1.0
+#: Relative change of the residual scales below which a least-squares start weighted by
+#: its guess's own scales is not fitted again (:func:`map_starts` with ``from_fit``).
+RESCALE_RTOL = 0.1
 #: Rounds of redrawing initial sampler positions whose log density is not finite.
 MAX_INIT_ROUNDS = 100
 
@@ -118,12 +121,16 @@ def startable(problem: Problem, guess: dict) -> dict:
 
 
 def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, guesses=(), *,
-               grid: bool = True, log=None) -> list:  # fmt: skip
+               grid: bool = True, from_fit: bool = False, log=None) -> list:  # fmt: skip
     """Starting points (flat vectors) of the MAP, each refined by :func:`least_squares_fit`.
 
     Each guess is fitted twice, the second time with the residual scales of the first fit
     (so the least-squares weighting of pitch against yaw is the MAP's, and the Newton polish
-    starts next to the optimum).
+    starts next to the optimum).  With ``from_fit`` the guesses are fits of a nearby model
+    (e.g. discovery's nested fallback, the current model with a new effect switched off):
+    each is fitted from its own initial state (:func:`x0_guess`) with the residual scales
+    it leaves, and fitted again only if its fit moves those scales by more than
+    :data:`RESCALE_RTOL` (at 11 substeps the second pass was half of such a refit).
     Guesses: ``guesses`` (dicts of physical values, e.g. a fit of a smaller model; missing
     names, and values on a bound of a free parameter's support (:func:`startable`), take
     the model's start values), then the model's start values (Table 1 for the
@@ -155,7 +162,14 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
     starts += [screened] if screened is not None else []
     y = problem.y[: problem.n_train]
     for k, params in enumerate(starts):
-        z, x0, cost = (np.asarray(a) for a in fit(coords.from_physical(params), x0_guess(problem)))
+        refit = from_fit and k < len(warm)
+        z0 = jnp.asarray(coords.from_physical(params))
+        x_start = x0_guess(problem, guesses[k] if refit else None)
+        weights = LSQ_SIGMA
+        if refit:  # weighted by the residual scales the fit leaves
+            left = np.asarray(sim(z0, jnp.asarray(x_start)))[:, :2] - y
+            weights = residual_rms(left) if np.all(np.isfinite(left)) else LSQ_SIGMA
+        z, x0, cost = (np.asarray(a) for a in fit(z0, x_start, weights))
         states = np.asarray(sim(jnp.asarray(z), jnp.asarray(x0)))
         resid = states[:, :2] - y
         usable = bool(np.all(np.isfinite(resid)))
@@ -167,10 +181,12 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
             continue
         # again with the residual scales of this fit (the MAP's weighting of theta vs psi)
         sigma = residual_rms(resid)
-        z2, x2, _ = (np.asarray(a) for a in fit(z, x0, sigma))
-        states2 = np.asarray(sim(jnp.asarray(z2), jnp.asarray(x2)))
-        if np.all(np.isfinite(states2[:, :2])):
-            z, x0, states = z2, x2, states2
+        own = refit and np.allclose(sigma, weights, rtol=RESCALE_RTOL, atol=0)
+        if not own:  # (a fit's guess weighted by its own scales already is not fitted again)
+            z2, x2, _ = (np.asarray(a) for a in fit(z, x0, sigma))
+            states2 = np.asarray(sim(jnp.asarray(z2), jnp.asarray(x2)))
+            if np.all(np.isfinite(states2[:, :2])):
+                z, x0, states = z2, x2, states2
         sigma, tau, timing = error_start(states[:, :2] - y, states[:, 2:4], problem.dt, problem.timing)
         phys = {k: float(v) for k, v in coords.to_physical(jnp.asarray(z)).items()}
         sites = init_sites(problem, phys, x0, sigma, tau, timing)
@@ -267,7 +283,7 @@ def whitening(start_info: dict) -> tuple[np.ndarray, np.ndarray]:
 def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
                   map_maxiter: int = 0, guesses=(), newton_steps: int | None = None,
                   polish_best: int | None = None, abandon_above: float | None = None,
-                  grid: bool = True, log=None) -> Start:  # fmt: skip
+                  grid: bool = True, from_fit: bool = False, log=None) -> Start:  # fmt: skip
     """Multi-start MAP, substeps check and Laplace covariance (module docstring).
 
     ``guesses``: parameter dicts tried first (see :func:`map_starts`); ``n_starts`` counts
@@ -287,7 +303,8 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
     substeps are raised and the Laplace covariance is computed (a caller with a better fit
     in hand, e.g. a nested model's, saves that work; in discovery it was 60-90 % of a
     stiff candidate's fit).
-    ``grid``: add the start grid's start (see :func:`map_starts`).
+    ``grid``: add the start grid's start; ``from_fit``: the guesses are fits of a nearby
+    model (both: see :func:`map_starts`).
     ``log``: called with a progress line per least-squares start.
 
     If no start simulates the record after its least-squares fit (each fit moved into a
@@ -309,13 +326,15 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
         newton_steps = NETWORK_NEWTON_STEPS if network else NEWTON_STEPS
         polish_best = 1 if network and polish_best is None else polish_best
     density = log_density_setup(problem, seed=seed)
-    starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, grid=grid, log=log)
+    starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, grid=grid,
+                        from_fit=from_fit, log=log)
     while not starts and problem.substeps < MAX_SUBSTEPS:  # every fit left a model too stiff
         problem = problem.with_substeps(retry_substeps(problem, guesses))
         if log is not None:
             log(f"no MAP start simulates the record: again at {problem.substeps} solver substeps")
         density = log_density_setup(problem, seed=seed)
-        starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, grid=grid, log=log)
+        starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, grid=grid,
+                        from_fit=from_fit, log=log)
     if not starts:
         raise ParameterError(
             "no MAP start simulates the record: the least-squares fit of every start gave a "

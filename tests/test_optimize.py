@@ -486,6 +486,15 @@ def test_the_nested_fallback_is_fitted_at_its_starts_substeps_without_the_grid(m
     start, from_off = candidates._nested_map(nested, task)
     assert calls == [(False, 1, True, False), (True, need, False, True)]
     assert np.isfinite(start.map_value)
+    # a known fit of the model itself (discovery's "before" on the whole record) likewise
+    base = make_problem(rec, model=build_model([]), error="iid", substeps=1)
+    need_base = required_substeps(base, stiff)
+    assert need_base > 1
+    calls.clear()
+    refit = candidates.FitTask(rec, (0.0, 1.0), None, (), (stiff,), 0, 1, 8, refit=True)
+    start, from_off = candidates._nested_map(base, refit)
+    assert calls == [(False, need_base, False, True)] and not from_off
+    assert np.isfinite(start.map_value)
 
 
 def test_a_start_from_a_fit_is_fitted_once_from_its_state_with_its_own_scales(monkeypatch):

@@ -181,6 +181,10 @@ class FitTask:
         Changes to the default priors (:meth:`PriorSet.updated`) of a discovery run, e.g.
         a parameter of a base effect, or of a candidate effect, fixed; the model takes
         those of its own parameters (:func:`model_priors`).
+    refit : bool
+        The guesses are fits of this model (e.g. on a shorter window): they are fitted
+        again as the nested fallback is, at the substeps they need, from their initial
+        state and residual scales, without a start grid (module docstring).
     """
 
     record: Experiment
@@ -195,6 +199,7 @@ class FitTask:
     off: dict | None = None
     floor: float | None = None
     priors: tuple[tuple[str, Prior], ...] = ()
+    refit: bool = False
 
 
 def model_priors(model, changes) -> PriorSet | None:
@@ -250,14 +255,14 @@ def _nested_map(problem, task: FitTask):
     Laplace covariance (:class:`~heli_uq.inference.start.PoorBasin`) and the fallback
     fitted; if the fallback fails too, that start is finished after all."""
 
-    def fit(guesses, n_starts, abandon_above=None, on=problem, refit=False):
+    def fit(guesses, n_starts, abandon_above=None, refit=task.refit):
+        on = problem.with_substeps(guess_substeps(problem, guesses)) if refit else problem
         return prepare_start(on, n_starts=n_starts, seed=task.seed, guesses=guesses,
                              newton_steps=task.newton_steps, polish_best=1,
                              abandon_above=abandon_above, grid=not refit, from_fit=refit)  # fmt: skip
 
     def fallback():  # at the current fit's substeps, from its basin only (no grid start)
-        return fit((task.off,), 1, on=problem.with_substeps(guess_substeps(problem, (task.off,))),
-                   refit=True)  # fmt: skip
+        return fit((task.off,), 1, refit=True)
 
     nested = task.off is not None and task.floor is not None
     try:

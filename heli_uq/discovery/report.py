@@ -5,7 +5,8 @@
   ``V`` [rad^2] and ``coverage90_theta, coverage90_psi`` per window: ``{"train": ...,
   "test": ...}`` when a split was given, else ``{"window": ...}``.  *After* is the NUTS
   posterior of the chosen model; *before* the base model's NUTS posterior (``full``) or
-  its Laplace approximation at the MAP (``quick``).
+  its Laplace approximation at the MAP (``quick``; without a split refitted on the whole
+  record from its fit on the fitting window, as a known fit: ``FitTask(refit=True)``).
 * ``report.md``; ``bands_before.png``, ``bands_after.png``, ``residuals.png``,
   ``candidates.png``; ``refit/`` (``posterior.nc``, ``summary.json`` of the refit).
 """
@@ -141,7 +142,7 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
     else:
         fitted = base_fit if split else fitted_predictive(
             FitTask(record, train, None, tuple(base_effects), (base_fit.params,), seed, 1, cost.draws,
-                    cost.newton_steps, priors=priors))  # fmt: skip
+                    cost.newton_steps, priors=priors, refit=True))  # fmt: skip
         bs, bp, by, bt = fitted.y_sim, fitted.y_pred, fitted.start.problem.y, fitted.start.problem.t
         problem_windows = fitted.start.problem.windows()
     before_masks = _masks(len(bt), problem_windows, split)

@@ -313,6 +313,29 @@ def test_substeps_cap_is_a_logged_warning(synthetic_problem, monkeypatch, caplog
     assert len(lines) == 1 and "the MAP needs 99 solver substeps" in lines[0], lines
 
 
+def test_a_map_that_stiffens_at_every_raise_is_raised_until_covered(synthetic_problem, monkeypatch):
+    """A model that imitates a missing friction by ever larger damping gets a stiffer MAP at
+    every raise of the substeps (on a stiff pitch-friction record: 1 -> 2 -> 4 -> 8 -> 16).
+    The raising goes on until the MAP's need is covered or capped, so the returned MAP is
+    polished on substeps that cover it; three raises left such a base model at 8 substeps
+    needing 16, while the candidates that nest it were fitted at 16 (their support then
+    held the solver's difference, 48 nats)."""
+    from heli_uq.inference import start as start_module
+    from heli_uq.simulation.stiffness import MAX_SUBSTEPS
+
+    seen = []
+
+    def stiffening(problem, params):
+        seen.append(problem.substeps)
+        return 2 * problem.substeps
+
+    monkeypatch.setattr(start_module, "required_substeps", stiffening)
+    start = start_module.prepare_start(synthetic_problem, n_starts=1, seed=0)
+    assert start.problem.substeps == MAX_SUBSTEPS
+    assert seen == [1, 2, 4, 8, 16], seen
+    assert start.map_decrement <= start_module.MAP_DECREMENT_MAX
+
+
 def test_laplace_draws_stiffer_than_the_map_raise_the_substeps(synthetic_problem, monkeypatch, caplog):
     """When the Laplace draws need more substeps than the MAP (a posterior that reaches
     stiffer models than its mode), the problem is rebuilt with them, logged, and the MAP

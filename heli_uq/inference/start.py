@@ -11,7 +11,12 @@ covariance, and the number of solver substeps the fitted parameters need.
    Newton steps from the least-squares fits (optionally after L-BFGS).
 3. **Substeps.**  A stiff effect (sharp friction) needs more RK4 substeps the larger its
    fitted level; if the MAP needs more than the problem has, the problem is rebuilt with
-   them and the MAP polished again.
+   them and the MAP polished again, as often as the polished MAP needs more, up to
+   :data:`~heli_uq.simulation.stiffness.MAX_SUBSTEPS`.  A model that imitates a missing
+   friction with damping stiffens at every raise (a pitch-friction record's base model:
+   1 -> 2 -> 4 -> 8 -> 16 substeps, 48 nats from 8 to 16); until 2026-12-07 three raises
+   were made, which left it at 8 needing 16 while the candidates nesting it were fitted at
+   16, so their support held the solver's difference.
 4. **Laplace covariance** at the MAP; then the substeps are checked once more against the
    stiffness of :data:`~heli_uq.inference.substeps.TAIL_DRAWS` Laplace draws
    (:func:`heli_uq.simulation.stiffness.substeps_covering`), so that the posterior's draws,
@@ -355,7 +360,7 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
         moved = leave_saddles(density, x_map)
         if moved[4] > 0:
             x_map, value, grad_max, decrement = moved[:4]
-    for _ in range(3):  # raise the substeps until the MAP's stiffness is covered
+    for _ in range(MAX_SUBSTEPS):  # raise the substeps until the MAP's stiffness is covered (or capped)
         sites = density.unravel(jnp.asarray(x_map))
         phys = {k: float(v) for k, v in problem.coords.to_physical(_full_z(problem, sites)).items()}
         need = capped_substeps(required_substeps(problem, phys), "the MAP")

@@ -411,3 +411,13 @@ def test_the_report_names_candidates_closer_than_the_base_yet_scored_below_it():
     assert line.count("nats") == 1  # only that one
     assert "deadband" not in line and "quadratic_drag" not in line
     assert _closer_lines(rows[1:], base, 4000) == []
+
+
+def test_the_report_says_when_the_base_fit_is_pinned_by_the_solver():
+    """A base fit whose damping sits at the solver's limit (``solver_edge`` of ``locate``)
+    gets a line in section 1 of the report naming the axis and the rate; none without."""
+    from heli_uq.discovery.report_page import _edge_lines
+
+    text = "\n".join(_edge_lines({"axis": "pitch", "rate": 4455.0, "rh": 2.78, "substeps": 16}))
+    assert "pinned by the solver" in text and "damps pitch" in text and "4455 /s" in text
+    assert _edge_lines(None) == []

@@ -302,15 +302,38 @@ def test_substeps_cap_is_a_logged_warning(synthetic_problem, monkeypatch, caplog
     import logging
 
     from heli_uq.inference import start as start_module
+    from heli_uq.inference import substeps as substeps_module
     from heli_uq.simulation import stiffness
 
-    monkeypatch.setattr(start_module, "required_substeps", lambda problem, params: 99)
-    monkeypatch.setattr(stiffness, "MAX_SUBSTEPS", synthetic_problem.substeps)
+    monkeypatch.setattr(substeps_module, "required_substeps", lambda problem, params: 99)
+    for module in (stiffness, substeps_module):
+        monkeypatch.setattr(module, "MAX_SUBSTEPS", synthetic_problem.substeps)
     with caplog.at_level(logging.WARNING, logger="heli_uq"):
         start = start_module.prepare_start(synthetic_problem, n_starts=1, seed=0)
     assert start.problem.substeps == synthetic_problem.substeps
     lines = [r.getMessage() for r in caplog.records if r.name == "heli_uq.simulation.stiffness"]
     assert len(lines) == 1 and "the MAP needs 99 solver substeps" in lines[0], lines
+
+
+def test_a_map_whose_damping_sits_at_the_solvers_limit_says_so(synthetic_problem, monkeypatch, caplog):
+    """A MAP capped at MAX_SUBSTEPS whose viscous decay sits at RK4's limit (a base model
+    imitating a hidden friction by damping) is reported as pinned by the solver, with its
+    axis, in the cap's warning (not as a friction to smooth) and on the returned start."""
+    import logging
+
+    from heli_uq.inference import start as start_module
+    from heli_uq.inference import substeps as substeps_module
+
+    edge = {"axis": "pitch", "rate": 4455.0, "rh": 2.78, "substeps": 16}
+    monkeypatch.setattr(substeps_module, "required_substeps", lambda problem, params: 99)
+    for module in (start_module, substeps_module):
+        monkeypatch.setattr(module, "map_edge", lambda problem, params: edge)
+    with caplog.at_level(logging.WARNING, logger="heli_uq"):
+        start = start_module.prepare_start(synthetic_problem, n_starts=1, seed=0)
+    lines = [r.getMessage() for r in caplog.records if r.name == "heli_uq.simulation.stiffness"]
+    assert len(lines) == 1 and "the fit damps pitch as hard as the solver allows" in lines[0], lines
+    assert "4455 /s" in lines[0] and "smoother" not in lines[0]
+    assert start.solver_edge == edge
 
 
 def test_a_map_that_stiffens_at_every_raise_is_raised_until_covered(synthetic_problem, monkeypatch):
@@ -321,6 +344,7 @@ def test_a_map_that_stiffens_at_every_raise_is_raised_until_covered(synthetic_pr
     needing 16, while the candidates that nest it were fitted at 16 (their support then
     held the solver's difference, 48 nats)."""
     from heli_uq.inference import start as start_module
+    from heli_uq.inference import substeps as substeps_module
     from heli_uq.simulation.stiffness import MAX_SUBSTEPS
 
     seen = []
@@ -329,7 +353,7 @@ def test_a_map_that_stiffens_at_every_raise_is_raised_until_covered(synthetic_pr
         seen.append(problem.substeps)
         return 2 * problem.substeps
 
-    monkeypatch.setattr(start_module, "required_substeps", stiffening)
+    monkeypatch.setattr(substeps_module, "required_substeps", stiffening)
     start = start_module.prepare_start(synthetic_problem, n_starts=1, seed=0)
     assert start.problem.substeps == MAX_SUBSTEPS
     assert seen == [1, 2, 4, 8, 16], seen

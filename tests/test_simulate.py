@@ -93,6 +93,38 @@ def test_substeps_cover_a_heavy_viscous_damping():
     assert default_substeps(model, FITTED, 0.01) == 1  # Table 1's damping: 1 substep
 
 
+#: ``r h`` of a damping just inside and just outside RK4's stability limit (2.785).
+INSIDE_EDGE_RH, OUTSIDE_EDGE_RH = 2.6, 2.95
+
+
+@pytest.mark.parametrize("axis", ["pitch", "yaw"])
+def test_a_damping_at_the_solvers_stability_limit_is_reported_with_its_axis(axis):
+    """``damping_edge`` names the axis whose viscous decay ``D / M`` sits at RK4's limit on
+    the given substeps, and nothing inside it.  Checked against the solver itself on pitch
+    (whose inertia is constant; yaw's is taken at its smallest): just inside the limit the
+    overdamped mode is simulated, just outside it blows up."""
+    from heli_uq.simulation.stiffness import EDGE_FRACTION, RK4_STABILITY, damping_edge
+
+    model = build_model()
+    m11, m22 = model.mechanics.inertia_bounds(FITTED)
+    name, inertia, substeps, dt = ("D_theta", m11, 4, 0.01) if axis == "pitch" else ("D_psi", m22, 1, 0.01)
+    at = {rh: dict(FITTED, **{name: rh * substeps / dt * inertia})
+          for rh in (INSIDE_EDGE_RH, OUTSIDE_EDGE_RH)}  # fmt: skip
+    assert EDGE_FRACTION * RK4_STABILITY < INSIDE_EDGE_RH < RK4_STABILITY < OUTSIDE_EDGE_RH
+    edge = damping_edge(model, at[INSIDE_EDGE_RH], dt, substeps)
+    assert edge["axis"] == axis and edge["substeps"] == substeps
+    assert edge["rh"] == pytest.approx(INSIDE_EDGE_RH, rel=1e-12)
+    assert damping_edge(model, at[INSIDE_EDGE_RH], dt, 2 * substeps) is None  # r h 1.3: inside
+    assert damping_edge(model, FITTED, dt, 1) is None  # Table 1's damping
+    if axis == "yaw":
+        return
+    rng = np.random.default_rng(5)
+    u = np.repeat(rng.uniform([1.2, 0.5], [1.5, 1.6], size=(10, 2)), 100, axis=0)
+    x0 = np.array([-0.55, 1.0, 0.0, 0.0])
+    assert bool(solve(at[INSIDE_EDGE_RH], x0, u, dt, substeps=substeps).ok)
+    assert not bool(solve(at[OUTSIDE_EDGE_RH], x0, u, dt, substeps=substeps).ok)
+
+
 def test_a_synthetic_record_past_the_substep_cap_is_made_at_the_cap_with_a_warning(caplog):
     """A model needing more than MAX_SUBSTEPS substeps is simulated at the cap (here still
     stable) and says so once through the package's logging, naming the synthetic record."""

@@ -3,14 +3,21 @@
 From the base model's Laplace predictive over the fitting and held-out windows:
 
 * per axis, RMSE and the share of samples outside the 90 % band on each window; the
-  *worst axis* is the one with the larger held-out RMSE relative to its fitted error scale;
+  *worst axis* is the one with the larger held-out RMSE relative to the data's noise
+  scale there, estimated from the residuals' successive differences (:func:`noise_scale`).
+  A fitted error scale would not do: it absorbs the model's misfit (on a record with a
+  hidden pitch friction the pitch scale was fitted at 6.7 mrad for 3 mrad of noise, and the
+  pitch looked no worse than the yaw);
 * per input segment (runs of constant voltages), the share outside the band;
 * per candidate feature (the voltages, the rates, whether the axis is still, the angles),
   the share outside the band in quantile bins: structure against a feature points at the
   effects that act through it (e.g. misses concentrated where yaw is still point at
   friction, misses that follow ``u_psi`` at a gain or dead band);
 * per axis, whether the residuals are white noise on every window
-  (:func:`~heli_uq.discovery.screen.white_axes`): nothing left there for a torque.
+  (:func:`~heli_uq.discovery.screen.white_axes`): nothing left there for a torque;
+* whether the fit damps an axis as hard as the solver allows
+  (:func:`~heli_uq.simulation.stiffness.damping_edge`, ``solver_edge``): it imitates a
+  missing torque there by damping.
 
 Writes ``residuals.png`` (time, segments, features) and returns a JSON-able dict.
 """
@@ -24,7 +31,7 @@ from heli_uq.discovery.score import input_blocks
 from heli_uq.discovery.screen import white_axes
 from heli_uq.figure import new_figure, save_figure
 
-__all__ = ["locate", "STILL_RATE", "N_BINS"]
+__all__ = ["locate", "noise_scale", "STILL_RATE", "N_BINS"]
 
 #: An axis counts as still below this rate [rad/s] (smoothed measured angle).
 STILL_RATE = 0.02
@@ -39,6 +46,15 @@ def _features(y, u, dt) -> dict:
     return {"u_theta [V]": u[:, 0], "u_psi [V]": u[:, 1], "omega_theta [rad/s]": v[:, 0],
             "omega_psi [rad/s]": v[:, 1], "theta [rad]": y[:, 0], "psi [rad]": y[:, 1],
             "psi still (|omega_psi| < 0.02)": (np.abs(v[:, 1]) < STILL_RATE).astype(float)}  # fmt: skip
+
+
+def noise_scale(resid) -> np.ndarray:
+    """The white-noise scale [rad] of residuals ``resid`` (n, 2), per column, from their
+    successive differences: ``sqrt(mean(diff^2) / 2)`` (Rice 1984).  A smooth misfit
+    (a missing torque's, integrated twice) barely enters the differences; white noise of
+    scale ``s`` gives ``s``."""
+    d = np.diff(np.asarray(resid, dtype=float), axis=0)
+    return np.sqrt(0.5 * np.mean(d * d, axis=0))
 
 
 def _binned(feature, outside) -> list[dict]:
@@ -76,14 +92,14 @@ def locate(fitted, out_dir=None) -> dict:
     outside = (y < lo) | (y > hi)
     resid = y - mean
     windows = problem.windows()
-    sigma = np.median(fitted.sigma, axis=0)
     per_window = {}
     for w, (a, b) in windows.items():
         per_window[w] = {f"{k}_{ax}": float(v) for ax, j in zip(_AXES, (0, 1))
                          for k, v in (("rmse", np.sqrt(np.mean(resid[a:b, j] ** 2))),
                                       ("outside90", outside[a:b, j].mean()))}  # fmt: skip
     c, d = windows["test"]
-    ratio = np.sqrt(np.mean(resid[c:d] ** 2, axis=0)) / sigma
+    noise = noise_scale(resid[c:d])
+    ratio = np.sqrt(np.mean(resid[c:d] ** 2, axis=0)) / np.maximum(noise, np.finfo(float).tiny)
     axis = "pitch" if ratio[0] > ratio[1] else "yaw"
     segments = [{"t0": float(t[a]), "t1": float(t[b - 1] + dt), "u_theta": float(u[a, 0]),
                  "u_psi": float(u[a, 1]),
@@ -95,9 +111,10 @@ def locate(fitted, out_dir=None) -> dict:
     spread = {name: max(b["outside90"] for b in bins) - min(b["outside90"] for b in bins)
               for name, bins in by_feature.items() if bins}  # fmt: skip
     result = {"axis": axis, "error_ratio": {"theta": float(ratio[0]), "psi": float(ratio[1])},
+              "noise": {"theta": float(noise[0]), "psi": float(noise[1])},
               "windows": per_window, "segments": segments, "by_feature": by_feature,
               "strongest_features": sorted(spread, key=lambda k: -spread[k])[:3],
-              "white": white_axes(resid, windows, dt)}  # fmt: skip
+              "white": white_axes(resid, windows, dt), "solver_edge": fitted.start.solver_edge}  # fmt: skip
     if out_dir is not None:
         fig = _figure(t, resid, outside, segments, by_feature, axis, windows)
         save_figure(fig, f"{out_dir}/residuals.png")

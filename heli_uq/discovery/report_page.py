@@ -13,6 +13,7 @@ from heli_uq.data import unseen_inputs
 from heli_uq.discovery.score import GAP_KEYS, MARGIN_CRPS_FRACTION, MARGIN_SE
 from heli_uq.discovery.screen import screen_text
 from heli_uq.model import AXES
+from heli_uq.simulation.stiffness import edge_text
 
 __all__ = ["report_page", "gap_warnings", "parameter_text", "tie_text", "CLOSER_V_FRACTION",
            "TIE_EVIDENCE_NATS"]
@@ -209,6 +210,11 @@ def _white_lines(white) -> list[str]:
             "not fitted: nothing is left there for a torque to explain."]  # fmt: skip
 
 
+def _edge_lines(edge) -> list[str]:
+    """The base fit pinned at the solver's limit (:func:`~heli_uq.simulation.stiffness.damping_edge`)."""
+    return [] if not edge else ["", f"**The base fit is pinned by the solver:** {edge_text(edge)}."]
+
+
 def report_page(result, where, ranking, steps, base, budget, fit_window, score_window, n_scored, health,
                 whole, seconds, record, base_label=None, priors=(), criterion="log") -> str:  # fmt: skip
     """The text of ``report.md``.  ``seconds``: the whole run's and the search's (base
@@ -225,9 +231,10 @@ def report_page(result, where, ranking, steps, base, budget, fit_window, score_w
              f"({n_scored} samples in input-segment blocks).{_reused_text(result['candidates'])}", "",
              *_model_lines(base_label, priors),
              "## 1. Where the base model fails", "",
-             f"Worst axis: **{where['axis']}** (held-out RMSE / fitted error scale: pitch "
-             f"{where['error_ratio']['theta']:.1f}, yaw {where['error_ratio']['psi']:.1f}).",
-             *_white_lines(where.get("white")), "",
+             f"Worst axis: **{where['axis']}** (held-out RMSE / the data's noise scale there, from "
+             f"successive differences: pitch {where['error_ratio']['theta']:.1f}, yaw "
+             f"{where['error_ratio']['psi']:.1f}).",
+             *_white_lines(where.get("white")), *_edge_lines(where.get("solver_edge")), "",
              "| window | RMSE pitch [rad] | outside 90 % pitch | RMSE yaw [rad] | outside 90 % yaw |",
              "|---|---|---|---|---|"]  # fmt: skip
     for w, m in where["windows"].items():

@@ -84,6 +84,7 @@ from heli_uq.executor import check_scheduler
 from heli_uq.log import progress_log
 from heli_uq.model import AXES, EFFECTS, RIG_FIT, build_model
 from heli_uq.probability import PriorSet, check_split
+from heli_uq.simulation.stiffness import edge_text
 
 __all__ = ["discover", "checked_priors", "cold_starts", "Budget", "BUDGETS", "FIT_FRACTION",
            "MIN_SECONDS"]  # fmt: skip
@@ -255,6 +256,8 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     say(f"base model: held-out {gap_text(base['score'])}; worst axis: {where['axis']}")
     say(f"residuals white on {' and '.join(a for a in AXES if white[a]['white']) or 'neither axis'} "
         f"({screen_text(white)})")  # fmt: skip
+    if where.get("solver_edge"):
+        say(f"base model: {edge_text(where['solver_edge'])}")
 
     # 3. the torque the data imply, and the sparse regression
     fw = record.window(*fit_w)

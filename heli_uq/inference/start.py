@@ -16,7 +16,9 @@ covariance, and the number of solver substeps the fitted parameters need.
    friction with damping stiffens at every raise (a pitch-friction record's base model:
    1 -> 2 -> 4 -> 8 -> 16 substeps, 48 nats from 8 to 16); until 2026-12-07 three raises
    were made, which left it at 8 needing 16 while the candidates nesting it were fitted at
-   16, so their support held the solver's difference.
+   16, so their support held the solver's difference.  Such a MAP sits at RK4's limit at
+   every count (``D_theta / M11`` 4455 /s, ``r h`` = 2.78 at 16): the start's
+   ``solver_edge`` and the cap's warning say so (:func:`~heli_uq.inference.substeps.map_edge`).
 4. **Laplace covariance** at the MAP; then the substeps are checked once more against the
    stiffness of :data:`~heli_uq.inference.substeps.TAIL_DRAWS` Laplace draws
    (:func:`heli_uq.simulation.stiffness.substeps_covering`), so that the posterior's draws,
@@ -48,7 +50,7 @@ from heli_uq.inference.error_start import error_start, residual_rms
 from heli_uq.inference.gaussian import gaussian_draws
 from heli_uq.inference.least_squares import LSQ_SIGMA, grid_start, least_squares_fit, x0_guess
 from heli_uq.inference.map import NEWTON_STEPS, find_map, laplace, leave_saddles, newton_polish
-from heli_uq.inference.substeps import TAIL_DRAWS, required_substeps, retry_substeps, tail_substeps
+from heli_uq.inference.substeps import TAIL_DRAWS, map_edge, map_need, retry_substeps, tail_substeps
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.probability.problem import Problem
@@ -218,6 +220,8 @@ class Start:
     map_decrement: float = float("nan")
     #: Largest decrement [nats] at which this start counts as converged (the health check).
     map_decrement_max: float = MAP_DECREMENT_MAX
+    #: A viscous decay of the MAP pinned at the solver's limit (:func:`map_edge`), or None.
+    solver_edge: dict | None = None
 
     def log_evidence(self) -> float:
         """The Laplace approximation of the log marginal likelihood of the data [nats]:
@@ -361,9 +365,8 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
         if moved[4] > 0:
             x_map, value, grad_max, decrement = moved[:4]
     for _ in range(MAX_SUBSTEPS):  # raise the substeps until the MAP's stiffness is covered (or capped)
-        sites = density.unravel(jnp.asarray(x_map))
-        phys = {k: float(v) for k, v in problem.coords.to_physical(_full_z(problem, sites)).items()}
-        need = capped_substeps(required_substeps(problem, phys), "the MAP")
+        phys = _map_values(problem, density, x_map)
+        need = map_need(problem, phys)
         if need <= problem.substeps:
             break
         problem = problem.with_substeps(need)
@@ -379,8 +382,14 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
         x_map, value, grad_max, decrement, _ = newton_polish(density, x_map, max(newton_steps, 1))
         _, cov = laplace(density, x_map)
     return Start(problem, density, np.asarray(x_map), float(value), cov, time.perf_counter() - t0,
-                 float(grad_max), float(decrement),
-                 NETWORK_MAP_DECREMENT_MAX if network else MAP_DECREMENT_MAX)  # fmt: skip
+                 float(grad_max), float(decrement), NETWORK_MAP_DECREMENT_MAX if network else
+                 MAP_DECREMENT_MAX, map_edge(problem, _map_values(problem, density, x_map)))  # fmt: skip
+
+
+def _map_values(problem: Problem, density: LogDensity, x) -> dict:
+    """The physical parameter values ``{name: float}`` at the unconstrained point ``x``."""
+    z = _full_z(problem, density.unravel(jnp.asarray(x)))
+    return {k: float(v) for k, v in problem.coords.to_physical(z).items()}
 
 
 def _full_z(problem: Problem, sites: dict):

@@ -12,9 +12,19 @@ import numpy as np
 from heli_uq.inference.density import LogDensity, constrain_draws
 from heli_uq.inference.gaussian import gaussian_draws
 from heli_uq.probability.problem import Problem
-from heli_uq.simulation.stiffness import MAX_SUBSTEPS, default_substeps, stiffness_rates, substeps_covering
+from heli_uq.simulation.stiffness import (
+    MAX_SUBSTEPS,
+    SMOOTHER_FRICTION,
+    capped_substeps,
+    damping_edge,
+    default_substeps,
+    edge_text,
+    stiffness_rates,
+    substeps_covering,
+)
 
-__all__ = ["TAIL_DRAWS", "required_substeps", "tail_substeps", "guess_substeps", "retry_substeps"]
+__all__ = ["TAIL_DRAWS", "required_substeps", "map_need", "map_edge", "tail_substeps",
+           "guess_substeps", "retry_substeps"]  # fmt: skip
 
 #: Laplace draws (seeded) whose stiffness the substeps must cover (their maximum is about
 #: the 99.8 % quantile of the rate).  The output stage checks every posterior draw again
@@ -25,6 +35,26 @@ TAIL_DRAWS = 256
 def required_substeps(problem: Problem, params: dict) -> int:
     """Substeps the model needs at ``params`` on the fitting window."""
     return default_substeps(problem.model, params, problem.dt, thetas=problem.y[: problem.n_train, 0])
+
+
+def map_edge(problem: Problem, params: dict) -> dict | None:
+    """The viscous decay of a fit at ``params`` pinned at RK4's stability limit on
+    ``problem``'s substeps (:func:`heli_uq.simulation.stiffness.damping_edge`), or None."""
+    return damping_edge(problem.model, params, problem.dt, problem.substeps,
+                        thetas=problem.y[: problem.n_train, 0])  # fmt: skip
+
+
+def map_need(problem: Problem, params: dict) -> int:
+    """The substeps a MAP at ``params`` needs (:func:`required_substeps`), capped at
+    :data:`MAX_SUBSTEPS`; the warning at the cap says so when the fit's damping sits at the
+    solver's limit (:func:`map_edge`), and suggests a smoother friction otherwise.  Below
+    the cap the need is capped silently: the MAP is raised to the cap and checked again, so
+    the warning is given once, on the MAP that stays."""
+    need = required_substeps(problem, params)
+    if need <= MAX_SUBSTEPS or problem.substeps < MAX_SUBSTEPS:
+        return min(need, MAX_SUBSTEPS)
+    edge = map_edge(problem, params)
+    return capped_substeps(need, "the MAP", edge_text(edge) if edge else SMOOTHER_FRICTION)
 
 
 def tail_substeps(problem: Problem, density: LogDensity, x_map, cov, seed: int = 0) -> int:

@@ -26,8 +26,9 @@ import numpy as np
 
 from heli_uq.model.heli_model import HeliModel
 
-__all__ = ["RK4_STABILITY", "STABLE_STEP", "MAX_SUBSTEPS", "default_substeps", "capped_substeps",
-           "stiffness_rates", "substeps_covering", "stiffness_check"]  # fmt: skip
+__all__ = ["RK4_STABILITY", "STABLE_STEP", "MAX_SUBSTEPS", "EDGE_FRACTION", "default_substeps",
+           "capped_substeps", "damping_edge", "edge_text", "stiffness_rates", "substeps_covering",
+           "stiffness_check"]  # fmt: skip
 
 #: RK4's stability limit on a decaying real mode: ``|r h|`` below 2.785.
 RK4_STABILITY = 2.785
@@ -42,15 +43,62 @@ MAX_SUBSTEPS = 16
 STABLE_STEP = 1.4
 
 
-def capped_substeps(need: int, what: str) -> int:
-    """``min(need, MAX_SUBSTEPS)``, with a warning naming ``what`` (e.g. ``"the MAP"``) when
-    the cap is reached."""
+#: A viscous decay this close to RK4's stability limit (``r h`` over this fraction of
+#: :data:`RK4_STABILITY`) at a fit's substeps is pinned by the solver (:func:`damping_edge`).
+EDGE_FRACTION = 0.9
+#: What :func:`capped_substeps` suggests by default.
+SMOOTHER_FRICTION = "for a sharp friction consider a smoother one (a larger omega_s)"
+
+
+def capped_substeps(need: int, what: str, hint: str = SMOOTHER_FRICTION) -> int:
+    """``min(need, MAX_SUBSTEPS)``, with a warning naming ``what`` (e.g. ``"the MAP"``) and
+    ending with ``hint`` when the cap is reached."""
     if need > MAX_SUBSTEPS:
         logging.getLogger(__name__).warning(
             f"{what} needs {need} solver substeps per sample for its stiffest mode; using "
-            f"{MAX_SUBSTEPS} (MAX_SUBSTEPS): the simulation may be inaccurate or diverge; for a "
-            "sharp friction consider a smoother one (a larger omega_s)")
+            f"{MAX_SUBSTEPS} (MAX_SUBSTEPS): the simulation may be inaccurate or diverge; {hint}")
     return min(need, MAX_SUBSTEPS)
+
+
+def damping_edge(model: HeliModel, params: Mapping, dt: float, substeps: int, *,
+                 thetas=None) -> dict | None:  # fmt: skip
+    """The viscous decay of a fit pinned at RK4's stability limit, or None.
+
+    A model that lacks a torque the data hold (a pitch friction) can imitate it by
+    damping: on a stiff record the likelihood then grows toward the overdamped limit
+    (``D / M`` without bound, a first-order axis), and what stops the fit is the solver,
+    whose linear mode blows up past ``r h = 2.785``.  Every raise of the substeps moves such
+    a MAP to the new limit (measured on a 131 s record with a hidden pitch friction: the
+    MAP needed 2, 4, 8, 16 and 32 substeps at 1, 2, 4, 8 and 16, its ``D_theta / M11``
+    4455 /s, ``r h`` = 2.78 at 16).  Its values are then set by the solver, not the data.
+
+    ``params``: the fit's values by name; ``dt`` [s]: the sample interval; ``substeps``:
+    the solver's substeps per sample; ``thetas``: as for :func:`stiffness_rates`.
+
+    Returns
+    -------
+    dict or None
+        ``{"axis", "rate" [1/s], "rh", "substeps"}`` of the most damped axis when its
+        ``rate * dt / substeps`` exceeds ``EDGE_FRACTION * RK4_STABILITY``; else None.
+    """
+    p = model.complete(params)
+    inertia = model.mechanics.inertia_bounds(p, thetas)
+    rates = {axis: float(r) for term in model.terms for axis, r in term.decay_rates(p, inertia).items()}
+    if not rates:
+        return None
+    axis = max(rates, key=rates.get)
+    rh = rates[axis] * float(dt) / substeps
+    if not rh > EDGE_FRACTION * RK4_STABILITY:
+        return None
+    return {"axis": axis, "rate": rates[axis], "rh": rh, "substeps": int(substeps)}
+
+
+def edge_text(edge: dict) -> str:
+    """What :func:`damping_edge` found, as a sentence's clause a person reads."""
+    return (f"the fit damps {edge['axis']} as hard as the solver allows (its viscous decay D/M = "
+            f"{edge['rate']:.0f} /s, r h = {edge['rh']:.2f} at {edge['substeps']} substeps, RK4's limit "
+            f"{RK4_STABILITY}): the data want an overdamped {edge['axis']}, a sign of a torque the "
+            f"model lacks there (e.g. friction), and the fit's values are set by the solver, not the data")
 
 
 def default_substeps(model: HeliModel, params: Mapping, dt: float, *, margin: float = 1.0,

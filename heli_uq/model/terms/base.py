@@ -167,12 +167,18 @@ class AbstractTerm(eqx.Module):
 
     def decay_rate(self, p, inertia) -> float:
         """Rate [1/s] of a linear decaying mode this term adds at rest, which one point's
-        solve must resolve and a posterior's spread need not (0 by default): past RK4's
-        limit a linear mode blows up, so a draw there fails visibly, where a friction
-        draw (:meth:`stiffness`) would drift silently; inside it the posterior's solver
-        check compares the most damped draw with the adaptive reference.  Arguments as for
-        :meth:`stiffness`."""
-        return 0.0
+        solve must resolve and a posterior's spread need not: the largest of
+        :meth:`decay_rates` (0 without any).  Past RK4's limit a linear mode blows up, so a
+        draw there fails visibly, where a friction draw (:meth:`stiffness`) would drift
+        silently; inside it the posterior's solver check compares the most damped draw with
+        the adaptive reference.  Arguments as for :meth:`stiffness`."""
+        rates = [np.asarray(r, dtype=float) for r in self.decay_rates(p, inertia).values()]
+        return np.maximum.reduce(rates) if rates else 0.0
+
+    def decay_rates(self, p, inertia) -> dict:
+        """``{axis: rate [1/s]}`` of the linear decaying modes this term adds at rest, per
+        axis it damps (none by default).  Arguments as for :meth:`stiffness`."""
+        return {}
 
 
 class AbstractTorque(AbstractTerm):

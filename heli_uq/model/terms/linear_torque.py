@@ -58,10 +58,10 @@ class LinearTorque(AbstractTorque):
         t_theta, t_psi = motor_torques(p, u)
         return t_theta - p["D_theta"] * v[0], t_psi - p["D_psi"] * v[1]
 
-    def decay_rate(self, p, inertia):
-        """The faster viscous decay ``D / M`` [1/s] of the two axes: 2.3 and 1.2 /s at the
-        rig's fit, but a fit that imitates a hidden friction by heavy damping on a light
-        body reaches RK4's limit (``D_theta / M11`` = 278 /s, ``r h`` = 2.78 at one
+    def decay_rates(self, p, inertia):
+        """The viscous decays ``D / M`` [1/s] of the two axes: 2.3 (pitch) and 1.2 /s (yaw)
+        at the rig's fit, but a fit that imitates a hidden friction by heavy damping on a
+        light body reaches RK4's limit (``D_theta / M11`` = 278 /s, ``r h`` = 2.78 at one
         substep, blew up 125 s into a record)."""
-        return np.maximum(np.asarray(p["D_theta"], dtype=float) / np.asarray(inertia[0], dtype=float),
-                          np.asarray(p["D_psi"], dtype=float) / np.asarray(inertia[1], dtype=float))
+        return {"pitch": np.asarray(p["D_theta"], dtype=float) / np.asarray(inertia[0], dtype=float),
+                "yaw": np.asarray(p["D_psi"], dtype=float) / np.asarray(inertia[1], dtype=float)}

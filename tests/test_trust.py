@@ -260,6 +260,21 @@ def test_an_initial_angle_far_from_its_prior_is_a_note():
     assert start_distances(idata, {**priors, "psi0": Prior("fixed", 0.81165)}).keys() == {"theta0"}
 
 
+def test_a_map_damped_to_the_solvers_limit_is_a_model_error_note():
+    """A run whose MAP's damping sits at RK4's limit (``Start.info()["solver_edge"]``,
+    copied into the summary) gets a note naming the axis, and stays healthy: the sampler
+    did its job on a model that lacks a torque."""
+    from heli_uq.output.health import check_health
+
+    edge = {"axis": "pitch", "rate": 4455.0, "rh": 2.78, "substeps": 16}
+    health = check_health({**HEALTHY, "solver_edge": edge})
+    assert health["ok"] and health["warnings"] == []
+    assert len(health["notes"]) == 1
+    assert "damps pitch as hard as the solver allows" in health["notes"][0]
+    assert "model error" in health["notes"][0]
+    assert check_health(HEALTHY)["notes"] == []
+
+
 @pytest.mark.parametrize("needle", list(FAILURES))
 def test_health_flags_each_failed_check(needle):
     from heli_uq.output.health import check_health

@@ -17,8 +17,7 @@ covariance, and the number of solver substeps the fitted parameters need.
    1 -> 2 -> 4 -> 8 -> 16 substeps, 48 nats from 8 to 16); until 2026-12-07 three raises
    were made, which left it at 8 needing 16 while the candidates nesting it were fitted at
    16, so their support held the solver's difference.  Such a MAP sits at RK4's limit at
-   every count (``D_theta / M11`` 4455 /s, ``r h`` = 2.78 at 16): the start's
-   ``solver_edge`` and the cap's warning say so (:func:`~heli_uq.inference.substeps.map_edge`).
+   every count (``r h`` = 2.78 at 16): ``solver_edge`` and the cap's warning say so.
 4. **Laplace covariance** at the MAP; then the substeps are checked once more against the
    stiffness of :data:`~heli_uq.inference.substeps.TAIL_DRAWS` Laplace draws
    (:func:`heli_uq.simulation.stiffness.substeps_covering`), so that the posterior's draws,
@@ -220,7 +219,7 @@ class Start:
     map_decrement: float = float("nan")
     #: Largest decrement [nats] at which this start counts as converged (the health check).
     map_decrement_max: float = MAP_DECREMENT_MAX
-    #: A viscous decay of the MAP pinned at the solver's limit (:func:`map_edge`), or None.
+    #: The MAP's viscous decay pinned at the solver's limit (``substeps.map_edge``), or None.
     solver_edge: dict | None = None
 
     def log_evidence(self) -> float:
@@ -257,7 +256,8 @@ class Start:
                 "map_grad_max": float(self.map_grad_max),
                 "map_decrement": float(self.map_decrement),
                 "map_decrement_max": float(self.map_decrement_max),
-                "substeps": int(self.problem.substeps)}  # fmt: skip
+                "substeps": int(self.problem.substeps), **({"solver_edge": self.solver_edge}
+                                                            if self.solver_edge else {})}  # fmt: skip
 
 
 def initial_draws(batched_log_density, n: int, dim: int, rng: np.random.Generator, *,

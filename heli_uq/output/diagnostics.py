@@ -82,7 +82,7 @@ def convergence(idata) -> dict:
     for key in ("map_value", "map_seconds", "warmup_seconds", "map_decrement", "map_decrement_max",
                 "target_accept", "substeps", "wall_coordinates", "wall_sides", "max_tree_depth",
                 "metric_factors", "draws_requested", "draws_extended_from", "warmup_requested", "warmup",
-                "adapt_mass_matrix"):
+                "adapt_mass_matrix", "solver_edge"):
         if key in info:
             out[key] = info[key]
     stats = idata.sample_stats

@@ -23,7 +23,8 @@ with the measured value and the limit.  Checks, and the flag they raise:
   outside :data:`COVERAGE90_RANGE` (model error, not a sampler fault: the checks above
   judge whether the posterior was computed right, this one whether the model fits); an
   initial angle whose posterior lies more than :data:`START_PRIOR_SDS` prior sd from its
-  prior's centre (the model cannot start where the record does).
+  prior's centre (the model cannot start where the record does); a MAP whose damping sits
+  at the solver's stability limit (:func:`heli_uq.simulation.stiffness.damping_edge`).
 * **unphysical**: posterior-predictive draws whose simulation leaves the physical range
   (:mod:`heli_uq.simulation.physical`: |pitch| > 90 deg or non-finite); the fixed-step
   solver off the adaptive reference by more than the tolerance; draws stiffer than the
@@ -41,6 +42,7 @@ import math
 from heli_uq.inference.start import MAP_DECREMENT_MAX as _START_DECREMENT_MAX
 from heli_uq.output.diagnostics import BFMI_MIN, ESS_MIN, RHAT_MAX
 from heli_uq.output.divergences import divergence_text
+from heli_uq.simulation.stiffness import edge_text
 
 __all__ = ["check_health", "format_warnings", "TREE_DEPTH_SATURATION_MAX", "STEP_SIZE_MIN",
            "STEP_SIZE_RATIO_MIN", "MAP_DECREMENT_MAX", "MAP_STARTS_ONLY", "UNCONVERGED",
@@ -180,6 +182,11 @@ def _start_notes(s: dict) -> list[str]:
     return out
 
 
+def _edge_notes(s: dict) -> list[str]:
+    edge = s.get("solver_edge")
+    return [f"at the MAP {edge_text(edge)}: model error, not a sampler fault"] if edge else []
+
+
 def check_health(summary: dict, *, solver_tol: float | None = None) -> dict:
     """``{"ok": bool, "flags": [...], "warnings": [...], "notes": [...]}`` of a
     ``summary.json`` record (``notes``: reported, not failed; module docstring).
@@ -213,6 +220,7 @@ def check_health(summary: dict, *, solver_tol: float | None = None) -> dict:
                      "only, to leave time for its draws before the time limit")  # fmt: skip
     notes.extend(_coverage_notes(summary))
     notes.extend(_start_notes(summary))
+    notes.extend(_edge_notes(summary))
     return {"ok": not flags, "flags": flags, "warnings": sampler + physical, "notes": notes}
 
 

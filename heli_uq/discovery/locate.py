@@ -126,7 +126,8 @@ def _figure(t, resid, outside, segments, by_feature, axis, windows):
     grid = fig.add_gridspec(3, 4, height_ratios=[1.2, 1.0, 1.1])
     ax_t = fig.add_subplot(grid[0, :])
     c, d = windows["test"]
-    for j, (name, color) in enumerate(zip(("pitch residual", "yaw residual"), ("C0", "C1"))):
+    order = (1, 0) if axis == "pitch" else (0, 1)  # the worst axis drawn last, on top
+    for j, name, color in ((j, ("pitch residual", "yaw residual")[j], f"C{j}") for j in order):
         ax_t.plot(t, np.degrees(resid[:, j]), color=color, lw=0.7, label=name)
         ax_t.plot(t[outside[:, j]], np.degrees(resid[outside[:, j], j]), ".", ms=1.5, color=color,
                   alpha=0.6)  # fmt: skip

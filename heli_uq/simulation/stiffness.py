@@ -83,7 +83,10 @@ def damping_edge(model: HeliModel, params: Mapping, dt: float, substeps: int, *,
     """
     p = model.complete(params)
     inertia = model.mechanics.inertia_bounds(p, thetas)
-    rates = {axis: float(r) for term in model.terms for axis, r in term.decay_rates(p, inertia).items()}
+    rates: dict = {}
+    for term in model.terms:  # decays on one axis add
+        for axis, r in term.decay_rates(p, inertia).items():
+            rates[axis] = rates.get(axis, 0.0) + float(r)
     if not rates:
         return None
     axis = max(rates, key=rates.get)

@@ -305,7 +305,7 @@ def test_substeps_cap_is_a_logged_warning(synthetic_problem, monkeypatch, caplog
     from heli_uq.inference import substeps as substeps_module
     from heli_uq.simulation import stiffness
 
-    monkeypatch.setattr(substeps_module, "required_substeps", lambda problem, params: 99)
+    monkeypatch.setattr(substeps_module, "required_substeps", lambda problem, params, decay=True: 99)
     for module in (stiffness, substeps_module):
         monkeypatch.setattr(module, "MAX_SUBSTEPS", synthetic_problem.substeps)
     with caplog.at_level(logging.WARNING, logger="heli_uq"):
@@ -315,25 +315,69 @@ def test_substeps_cap_is_a_logged_warning(synthetic_problem, monkeypatch, caplog
     assert len(lines) == 1 and "the MAP needs 99 solver substeps" in lines[0], lines
 
 
-def test_a_map_whose_damping_sits_at_the_solvers_limit_says_so(synthetic_problem, monkeypatch, caplog):
-    """A MAP capped at MAX_SUBSTEPS whose viscous decay sits at RK4's limit (a base model
-    imitating a hidden friction by damping) is reported as pinned by the solver, with its
-    axis, in the cap's warning (not as a friction to smooth) and on the returned start."""
+def test_a_map_whose_damping_sits_at_the_solvers_limit_says_so_and_is_held(synthetic_problem, monkeypatch,
+                                                                           caplog):  # fmt: skip
+    """A MAP whose viscous decay sits at RK4's limit (a base model imitating a hidden
+    friction by damping) follows the limit at every raise, so it is raised to
+    EDGE_SUBSTEPS only and held there: the cap's warning names the axis and why (not a
+    friction to smooth), once, and the returned start carries the edge.  The edge is
+    remembered: a MAP pinned at 1 substep and not at 2 is still held at 2."""
     import logging
 
     from heli_uq.inference import start as start_module
     from heli_uq.inference import substeps as substeps_module
 
-    edge = {"axis": "pitch", "rate": 4455.0, "rh": 2.78, "substeps": 16}
-    monkeypatch.setattr(substeps_module, "required_substeps", lambda problem, params: 99)
-    for module in (start_module, substeps_module):
-        monkeypatch.setattr(module, "map_edge", lambda problem, params: edge)
-    with caplog.at_level(logging.WARNING, logger="heli_uq"):
-        start = start_module.prepare_start(synthetic_problem, n_starts=1, seed=0)
-    lines = [r.getMessage() for r in caplog.records if r.name == "heli_uq.simulation.stiffness"]
-    assert len(lines) == 1 and "the fit damps pitch as hard as the solver allows" in lines[0], lines
-    assert "4455 /s" in lines[0] and "smoother" not in lines[0]
-    assert start.solver_edge == edge
+    edge = {"axis": "pitch", "rate": 270.0, "rh": 2.7, "substeps": 1}
+    monkeypatch.setattr(substeps_module, "required_substeps", lambda problem, params, decay=True: 99)
+    for pinned_only_at_one in (False, True):
+        def pinned(problem, params):
+            return edge if problem.substeps == 1 or not pinned_only_at_one else None
+
+        for module in (start_module, substeps_module):
+            monkeypatch.setattr(module, "map_edge", pinned)
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="heli_uq"):
+            start = start_module.prepare_start(synthetic_problem, n_starts=1, seed=0)
+        lines = [r.getMessage() for r in caplog.records if r.name == "heli_uq.simulation.stiffness"]
+        assert start.problem.substeps == substeps_module.EDGE_SUBSTEPS
+        assert len(lines) == 1 and "the fit damps pitch as hard as the solver allows" in lines[0], lines
+        assert f"using {substeps_module.EDGE_SUBSTEPS}:" in lines[0] and "held at" in lines[0]
+        assert "270 /s" in lines[0] and "smoother" not in lines[0]
+        assert start.solver_edge == edge
+
+
+def test_a_guess_pinned_at_the_solvers_limit_is_refitted_where_it_was_held(synthetic_problem):
+    """The nested fallback of discovery refits the current model's MAP at the substeps its
+    stiffness needs (guess_substeps).  A viscous decay is not raised for while the solver
+    holds it (inside RK4's limit): a MAP held at EDGE_SUBSTEPS with its pitch decay at the
+    limit there, which the stiffness rule would give twice that, is refitted at the count it
+    was held at, so a candidate nesting it is compared on the same solver.  A decay stable
+    only at more substeps (a fit held at 16 before) and a friction's need keep the rule."""
+    from heli_uq.inference.substeps import EDGE_SUBSTEPS, guess_substeps, required_substeps
+    from heli_uq.model import build_model
+    from heli_uq.probability import make_problem
+    from heli_uq.simulation import synthetic_experiment
+    from heli_uq.simulation.stiffness import MAX_SUBSTEPS, RK4_STABILITY
+
+    problem = synthetic_problem
+    model = problem.model
+    values = model.complete(model.start_values())
+    m11 = float(model.mechanics.inertia_bounds(values, problem.y[: problem.n_train, 0])[0])
+
+    def with_rh(rh, substeps, guess=values):  # D_theta whose pitch decay D/M11 has r h = rh there
+        return {**guess, "D_theta": rh * substeps / problem.dt * m11}
+
+    pinned = with_rh(RK4_STABILITY, EDGE_SUBSTEPS)  # at the limit, to rounding
+    assert required_substeps(problem, pinned) > EDGE_SUBSTEPS
+    assert guess_substeps(problem, [pinned]) == EDGE_SUBSTEPS
+    inside_at_one = with_rh(0.7 * RK4_STABILITY, 1)
+    assert required_substeps(problem, inside_at_one) == 2 and guess_substeps(problem, [inside_at_one]) == 1
+    beyond = with_rh(0.97 * RK4_STABILITY, MAX_SUBSTEPS)  # unstable at EDGE_SUBSTEPS
+    assert guess_substeps(problem, [beyond]) == MAX_SUBSTEPS
+    record = synthetic_experiment(duration=4.0, seed=1)
+    friction = make_problem(record, error="iid", model=build_model(["yaw:coulomb_friction"]))
+    sharp = {**values, "F_c_yaw": 0.01}  # its stiffness, not a decay, asks for the substeps
+    assert guess_substeps(friction, [sharp]) == required_substeps(friction, sharp) > friction.substeps
 
 
 def test_a_map_that_stiffens_at_every_raise_is_raised_until_covered(synthetic_problem, monkeypatch):
@@ -349,8 +393,8 @@ def test_a_map_that_stiffens_at_every_raise_is_raised_until_covered(synthetic_pr
 
     seen = []
 
-    def stiffening(problem, params):
-        seen.append(problem.substeps)
+    def stiffening(problem, params, decay=True):  # a friction's need, with or without the decay
+        seen.extend([problem.substeps] if decay else [])
         return 2 * problem.substeps
 
     monkeypatch.setattr(substeps_module, "required_substeps", stiffening)

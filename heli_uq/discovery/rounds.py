@@ -24,8 +24,9 @@ __all__ = ["FIT_VERSION", "CandidateStore", "run_round", "task_signature"]
 #: predictive when Pareto k rejects them; 3: a term's start grid adds a MAP start, e.g.
 #: a dead band between the record's voltage levels; 4: the held-out CRPS is stored beside
 #: the log score; 5: a still axis that a friction term holds starts at rate 0; 6: the MAP's
-#: substeps cover the viscous damping's decay).
-FIT_VERSION = 6
+#: substeps cover the viscous damping's decay; 7: a fit pinned at the solver's limit is held
+#: at 2 substeps and settled there, ``candidates.EDGE_DECREMENT``).
+FIT_VERSION = 7
 
 
 def task_signature(record: Experiment, task: FitTask) -> str:

@@ -14,10 +14,10 @@ covariance, and the number of solver substeps the fitted parameters need.
    them and the MAP polished again, as often as the polished MAP needs more, up to
    :data:`~heli_uq.simulation.stiffness.MAX_SUBSTEPS`.  A model that imitates a missing
    friction with damping stiffens at every raise (a pitch-friction record's base model:
-   1 -> 2 -> 4 -> 8 -> 16 substeps, 48 nats from 8 to 16); until 2026-12-07 three raises
-   were made, which left it at 8 needing 16 while the candidates nesting it were fitted at
-   16, so their support held the solver's difference.  Such a MAP sits at RK4's limit at
-   every count (``r h`` = 2.78 at 16): ``solver_edge`` and the cap's warning say so.
+   1 -> 2 -> 4 -> 8 -> 16 substeps).  Such a MAP sits at RK4's limit at every count
+   (``r h`` = 2.78 at 16), so a fit found pinned there is raised to
+   :data:`~heli_uq.inference.substeps.EDGE_SUBSTEPS` only and held (``solver_edge`` and
+   the cap's warning say so; since 2026-12-07, before that it climbed to 16).
 4. **Laplace covariance** at the MAP; then the substeps are checked once more against the
    stiffness of :data:`~heli_uq.inference.substeps.TAIL_DRAWS` Laplace draws
    (:func:`heli_uq.simulation.stiffness.substeps_covering`), so that the posterior's draws,
@@ -304,17 +304,15 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
     neural term :data:`NETWORK_NEWTON_STEPS` and ``polish_best=1`` (module docstring).
 
     ``map_maxiter``: L-BFGS steps per start before the Newton polish.  The default 0 goes
-    straight from the least-squares fits to Newton, which reaches the same optimum (to
-    1e-9 nats on the rig record and the test records) in about half the time: compiling
-    L-BFGS with its line search around the simulator costs more than the Newton steps.
+    straight from the least-squares fits to Newton: the same optimum (to 1e-9 nats on the
+    rig and the test records) in about half the time (L-BFGS's compilation costs more).
     ``abandon_above``: a ``-log p`` [nats] above which the MAP search is not finished: if
     the best start's polished value ends above it, :class:`PoorBasin` is raised before the
     substeps are raised and the Laplace covariance is computed (a caller with a better fit
     in hand, e.g. a nested model's, saves that work; in discovery it was 60-90 % of a
     stiff candidate's fit).
     ``grid``: add the start grid's start; ``from_fit``: the guesses are fits of a nearby
-    model (both: see :func:`map_starts`).
-    ``log``: called with a progress line per least-squares start.
+    model (both: see :func:`map_starts`).  ``log``: called with a line per least-squares start.
 
     If no start simulates the record after its least-squares fit (each fit moved into a
     model too stiff for the problem's substeps), the starts are fitted again with more
@@ -364,16 +362,17 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
         moved = leave_saddles(density, x_map)
         if moved[4] > 0:
             x_map, value, grad_max, decrement = moved[:4]
-    for _ in range(MAX_SUBSTEPS):  # raise the substeps until the MAP's stiffness is covered (or capped)
-        phys = _map_values(problem, density, x_map)
-        need = map_need(problem, phys)
+    edge = None  # raise the substeps until the MAP's stiffness is covered (or capped)
+    for _ in range(MAX_SUBSTEPS):
+        need, edge = map_need(problem, _map_values(problem, density, x_map), edge)
         if need <= problem.substeps:
             break
         problem = problem.with_substeps(need)
         density = log_density_setup(problem, seed=seed)
         x_map, value, grad_max, decrement, _ = newton_polish(density, x_map, max(newton_steps, 1))
     _, cov = laplace(density, x_map)
-    need = capped_substeps(tail_substeps(problem, density, x_map, cov, seed), "the Laplace approximation")
+    tail = problem.substeps if edge else tail_substeps(problem, density, x_map, cov, seed)  # pinned: held
+    need = capped_substeps(tail, "the Laplace approximation")
     if need > problem.substeps:  # the posterior's spread reaches stiffer models than its mode
         logging.getLogger(__name__).info(f"solver substeps {problem.substeps} -> {need}: the stiffest "
                                          f"of {TAIL_DRAWS} Laplace draws needs them")  # fmt: skip
@@ -381,9 +380,10 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
         density = log_density_setup(problem, seed=seed)
         x_map, value, grad_max, decrement, _ = newton_polish(density, x_map, max(newton_steps, 1))
         _, cov = laplace(density, x_map)
+    edge = map_edge(problem, _map_values(problem, density, x_map)) or edge
+    limit = NETWORK_MAP_DECREMENT_MAX if network else MAP_DECREMENT_MAX
     return Start(problem, density, np.asarray(x_map), float(value), cov, time.perf_counter() - t0,
-                 float(grad_max), float(decrement), NETWORK_MAP_DECREMENT_MAX if network else
-                 MAP_DECREMENT_MAX, map_edge(problem, _map_values(problem, density, x_map)))  # fmt: skip
+                 float(grad_max), float(decrement), limit, edge)
 
 
 def _map_values(problem: Problem, density: LogDensity, x) -> dict:

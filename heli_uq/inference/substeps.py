@@ -14,6 +14,7 @@ from heli_uq.inference.gaussian import gaussian_draws
 from heli_uq.probability.problem import Problem
 from heli_uq.simulation.stiffness import (
     MAX_SUBSTEPS,
+    RK4_STABILITY,
     SMOOTHER_FRICTION,
     capped_substeps,
     damping_edge,
@@ -23,18 +24,47 @@ from heli_uq.simulation.stiffness import (
     substeps_covering,
 )
 
-__all__ = ["TAIL_DRAWS", "required_substeps", "map_need", "map_edge", "tail_substeps",
-           "guess_substeps", "retry_substeps"]  # fmt: skip
+__all__ = ["TAIL_DRAWS", "EDGE_SUBSTEPS", "required_substeps", "decay_held", "map_need", "map_edge",
+           "tail_substeps", "guess_substeps", "retry_substeps"]  # fmt: skip
 
 #: Laplace draws (seeded) whose stiffness the substeps must cover (their maximum is about
 #: the 99.8 % quantile of the rate).  The output stage checks every posterior draw again
 #: (:func:`heli_uq.simulation.stiffness.stiffness_check`).
 TAIL_DRAWS = 256
+#: Most substeps a fit pinned at the solver's limit (:func:`map_edge`) is raised to.  Its
+#: MAP follows the limit: on a 131 s record with a hidden pitch friction the base model
+#: needed 2, 4, 8, 16 and 32 substeps at 1, 2, 4, 8 and 16, ``-log p`` fell by 583, 335,
+#: 178 and 48 nats, and each raise made it and every candidate nesting it slower (at 16 a
+#: wrong candidate took 80 s, its least squares never converging at the limit).  So a MAP
+#: found pinned is raised once, to this, and held there.  A viscous decay inside the limit
+#: is not raised for (:func:`decay_held`), so the fits that nest a pinned one and are pinned
+#: too are held at the same count: their comparison holds no solver difference.
+EDGE_SUBSTEPS = 2
+#: Why a pinned fit's substeps are held (the cap's warning).
+EDGE_HELD = (f"more substeps move that limit with them, not the fit's answer, so a fit pinned there "
+             f"is held at {EDGE_SUBSTEPS} (or at its problem's substeps, if more)")
+#: ``r h`` up to this multiple of RK4's limit (2.785, rounded) counts as at the limit: a MAP
+#: found there sits on it to rounding (``r h`` = 2.7854 on that record).
+EDGE_ROUNDING = 1.001
 
 
-def required_substeps(problem: Problem, params: dict) -> int:
-    """Substeps the model needs at ``params`` on the fitting window."""
-    return default_substeps(problem.model, params, problem.dt, thetas=problem.y[: problem.n_train, 0])
+def required_substeps(problem: Problem, params: dict, decay: bool = True) -> int:
+    """Substeps the model needs at ``params`` on the fitting window (``decay`` False: its
+    stiff terms but the viscous damping)."""
+    return default_substeps(problem.model, params, problem.dt, thetas=problem.y[: problem.n_train, 0],
+                            decay=decay)  # fmt: skip
+
+
+def decay_held(problem: Problem, params: dict, substeps: int) -> bool:
+    """True if a fit at ``params`` needs more than ``substeps`` only for its viscous decay,
+    and that decay is stable at ``substeps`` (``r h`` inside RK4's limit, to rounding).  The
+    solver then holds it: a linear mode inside the limit errs little (yaw damping at
+    ``r h`` = 2.7: 1.3e-4 rad, :mod:`~heli_uq.simulation.stiffness`), and more substeps
+    would only let a fit that imitates a missing torque by damping damp harder."""
+    if required_substeps(problem, params, decay=False) > substeps:
+        return False
+    edge = damping_edge(problem.model, params, problem.dt, substeps, thetas=problem.y[: problem.n_train, 0])
+    return edge is None or edge["rh"] <= EDGE_ROUNDING * RK4_STABILITY
 
 
 def map_edge(problem: Problem, params: dict) -> dict | None:
@@ -44,17 +74,26 @@ def map_edge(problem: Problem, params: dict) -> dict | None:
                         thetas=problem.y[: problem.n_train, 0])  # fmt: skip
 
 
-def map_need(problem: Problem, params: dict) -> int:
-    """The substeps a MAP at ``params`` needs (:func:`required_substeps`), capped at
-    :data:`MAX_SUBSTEPS`; the warning at the cap says so when the fit's damping sits at the
-    solver's limit (:func:`map_edge`), and suggests a smoother friction otherwise.  Below
-    the cap the need is capped silently: the MAP is raised to the cap and checked again, so
-    the warning is given once, on the MAP that stays."""
+def map_need(problem: Problem, params: dict, edge: dict | None = None) -> tuple[int, dict | None]:
+    """``(need, edge)``: the substeps a MAP at ``params`` needs (:func:`required_substeps`),
+    capped, and its viscous decay pinned at the solver's limit (:func:`map_edge`), or the
+    ``edge`` an earlier MAP of the same fit was pinned at, or None.
+
+    A decay the solver holds (:func:`decay_held`) needs no raise.  The cap is
+    :data:`MAX_SUBSTEPS`, or for a fit pinned at the limit :data:`EDGE_SUBSTEPS` (at least
+    the problem's substeps).  Below the cap the need is capped silently: the MAP is raised
+    to the cap and checked again, so the warning is given once, on the MAP that stays; at
+    the cap it says the fit is pinned, or suggests a smoother friction.
+    """
+    edge = map_edge(problem, params) or edge
+    cap = MAX_SUBSTEPS if edge is None else max(EDGE_SUBSTEPS, problem.substeps)
     need = required_substeps(problem, params)
-    if need <= MAX_SUBSTEPS or problem.substeps < MAX_SUBSTEPS:
-        return min(need, MAX_SUBSTEPS)
-    edge = map_edge(problem, params)
-    return capped_substeps(need, "the MAP", edge_text(edge) if edge else SMOOTHER_FRICTION)
+    if need > problem.substeps and edge is None and decay_held(problem, params, problem.substeps):
+        return problem.substeps, None
+    if need <= cap or problem.substeps < cap:
+        return min(need, cap), edge
+    hint = SMOOTHER_FRICTION if edge is None else f"{edge_text(edge)}; {EDGE_HELD}"
+    return capped_substeps(need, "the MAP", hint, cap), edge
 
 
 def tail_substeps(problem: Problem, density: LogDensity, x_map, cov, seed: int = 0) -> int:
@@ -73,11 +112,18 @@ def guess_substeps(problem: Problem, guesses) -> int:
     lacks are ignored) needs on the fitting window, at least ``problem.substeps``, at most
     :data:`MAX_SUBSTEPS`: for a problem refitted from a known fit, e.g. discovery's nested
     fallback from the current model's MAP, which would otherwise climb to them from one
-    substep, a Newton polish at each doubling."""
+    substep, a Newton polish at each doubling.  A guess whose viscous decay the solver holds
+    at ``problem.substeps`` or at :data:`EDGE_SUBSTEPS` (:func:`decay_held`; a fit pinned at
+    the limit is held there, :func:`map_need`) gets that count."""
     names = problem.model.start_values()
-    need = [required_substeps(problem, {k: float(v) for k, v in g.items() if k in names})
-            for g in guesses]  # fmt: skip
-    return min(max([problem.substeps, *need]), MAX_SUBSTEPS)
+
+    def need(guess):
+        values = {k: float(v) for k, v in guess.items() if k in names}
+        full = required_substeps(problem, values)
+        counts = sorted({problem.substeps, EDGE_SUBSTEPS})
+        return next((n for n in counts if n < full and decay_held(problem, values, n)), full)
+
+    return min(max([problem.substeps, *map(need, guesses)]), MAX_SUBSTEPS)
 
 
 def retry_substeps(problem: Problem, guesses) -> int:

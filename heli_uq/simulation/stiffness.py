@@ -50,14 +50,15 @@ EDGE_FRACTION = 0.9
 SMOOTHER_FRICTION = "for a sharp friction consider a smoother one (a larger omega_s)"
 
 
-def capped_substeps(need: int, what: str, hint: str = SMOOTHER_FRICTION) -> int:
-    """``min(need, MAX_SUBSTEPS)``, with a warning naming ``what`` (e.g. ``"the MAP"``) and
-    ending with ``hint`` when the cap is reached."""
-    if need > MAX_SUBSTEPS:
+def capped_substeps(need: int, what: str, hint: str = SMOOTHER_FRICTION, cap: int = MAX_SUBSTEPS) -> int:
+    """``min(need, cap)``, with a warning naming ``what`` (e.g. ``"the MAP"``) and ending
+    with ``hint`` when the cap (default :data:`MAX_SUBSTEPS`) is reached."""
+    if need > cap:
         logging.getLogger(__name__).warning(
             f"{what} needs {need} solver substeps per sample for its stiffest mode; using "
-            f"{MAX_SUBSTEPS} (MAX_SUBSTEPS): the simulation may be inaccurate or diverge; {hint}")
-    return min(need, MAX_SUBSTEPS)
+            f"{cap}{' (MAX_SUBSTEPS)' if cap == MAX_SUBSTEPS else ''}: the simulation may be "
+            f"inaccurate or diverge; {hint}")  # fmt: skip
+    return min(need, cap)
 
 
 def damping_edge(model: HeliModel, params: Mapping, dt: float, substeps: int, *,
@@ -105,16 +106,17 @@ def edge_text(edge: dict) -> str:
 
 
 def default_substeps(model: HeliModel, params: Mapping, dt: float, *, margin: float = 1.0,
-                     thetas=None) -> int:  # fmt: skip
+                     thetas=None, decay: bool = True) -> int:  # fmt: skip
     """RK4 substeps per sample for ``model`` at ``params``: ``ceil(margin rate dt / 1.4)``.
 
     ``rate`` is the model's largest stiffness rate near rest (:meth:`HeliModel.stiffness`,
     e.g. ``F_c / (omega_s M22)`` for smoothed friction, with ``M22`` the smallest yaw
     inertia over the pitch angles ``thetas`` [rad], default all), the viscous damping's
     ``D / M`` included (one point), and 1.4 (:data:`STABLE_STEP`) is half RK4's stability
-    limit on a decaying mode.  1 at the rig's parameters without stiff terms.
+    limit on a decaying mode.  1 at the rig's parameters without stiff terms.  ``decay``
+    False leaves the viscous damping out (the need of the other stiff terms).
     """
-    rate = model.stiffness(model.complete(params), thetas, decay=True)
+    rate = model.stiffness(model.complete(params), thetas, decay=decay)
     return max(1, math.ceil(margin * rate * float(dt) / STABLE_STEP))
 
 

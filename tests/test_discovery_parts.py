@@ -226,51 +226,6 @@ def test_a_start_far_above_the_current_fit_is_abandoned_for_the_fallback(trap_re
         assert fitted.from_off and fitted.start.map_value <= base.start.map_value + OFF_PRIOR_NATS
 
 
-def test_a_fit_held_at_the_solvers_limit_is_settled_by_refits_from_its_own_map(monkeypatch):
-    """A MAP held at the solver's limit is a boundary point: Newton stops short there (on a
-    pitch friction record the base model held at 2 substeps kept a decrement of 355 nats,
-    and every candidate nesting it beat it by hundreds of nats).  It is refitted from its
-    own MAP, at its own problem, while its decrement exceeds EDGE_DECREMENT and the refit
-    improves it, at most EDGE_PASSES times; a fit off the limit, or converged, is kept."""
-    import dataclasses
-
-    import heli_uq.discovery.candidates as candidates
-    from heli_uq.model import X0_NAMES
-
-    @dataclasses.dataclass
-    class Fit:
-        map_value: float
-        map_decrement: float
-        solver_edge: dict | None = dataclasses.field(default_factory=lambda: {"axis": "pitch"})
-        problem: str = "held at 2 substeps"
-
-        def map_point(self):
-            return {"D_theta": self.map_value}, np.zeros(len(X0_NAMES))
-
-    def run(first, refits):
-        queue, seen = list(refits), []
-
-        def refit(problem, **kw):
-            seen.append((problem, kw["guesses"][0]["D_theta"], kw["from_fit"], kw["grid"]))
-            return queue.pop(0)
-
-        monkeypatch.setattr(candidates, "prepare_start", refit)
-        task = candidates.FitTask(None, (0.0, 1.0), None, (), newton_steps=4)
-        return candidates._settled(first, task), seen
-
-    big = candidates.EDGE_DECREMENT * 30
-    out, seen = run(Fit(-100.0, big), [Fit(-500.0, big), Fit(-600.0, 0.5 * candidates.EDGE_DECREMENT)])
-    assert out.map_value == -600.0 and len(seen) == 2
-    assert seen[0] == ("held at 2 substeps", -100.0, True, False) and seen[1][1] == -500.0
-    out, seen = run(Fit(-100.0, big), [Fit(-90.0, 1.0)])  # a refit that ends worse is not kept
-    assert out.map_value == -100.0 and len(seen) == 1
-    out, seen = run(Fit(-100.0, big), [Fit(-100.0 - k, big) for k in range(1, 10)])
-    assert len(seen) == candidates.EDGE_PASSES and out.map_value == -100.0 - candidates.EDGE_PASSES
-    for kept in (Fit(-100.0, big, None), Fit(-100.0, 0.5 * candidates.EDGE_DECREMENT)):
-        out, seen = run(kept, [])
-        assert out is kept and not seen
-
-
 def test_input_blocks_follow_voltage_changes_and_merge_short_runs():
     dt = 0.01
     u = np.zeros((1000, 2))

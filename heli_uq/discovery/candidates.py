@@ -47,7 +47,7 @@ import numpy as np
 from heli_uq.data import Experiment
 from heli_uq.discovery.score import MIN_BLOCKS, block_crps, block_scores, gap_metrics, input_blocks
 from heli_uq.errors import ParameterError
-from heli_uq.inference import constrain_draws, importance_resample, prepare_start
+from heli_uq.inference import constrain_draws, importance_resample, prepare_start, settle_edge
 from heli_uq.inference.laplace_sampler import PARETO_K_MAX
 from heli_uq.inference.start import PoorBasin
 from heli_uq.inference.substeps import guess_substeps
@@ -58,8 +58,7 @@ from heli_uq.probability import make_problem
 from heli_uq.probability.priors import PriorSet
 
 __all__ = ["FitTask", "fit_and_score", "score_fitted", "Fitted", "fitted_predictive", "probe_values",
-           "warm_starts", "off_start", "model_priors", "NESTED_SLACK_NATS", "ABANDON_NATS", "OFF_FRACTION",
-           "EDGE_DECREMENT", "EDGE_PASSES"]
+           "warm_starts", "off_start", "model_priors", "NESTED_SLACK_NATS", "ABANDON_NATS", "OFF_FRACTION"]
 
 #: A nested candidate's MAP may end this far [nats of -log posterior] above the current
 #: model's before it is refitted from "effect off".  The slack covers the new parameters'
@@ -72,16 +71,6 @@ NESTED_SLACK_NATS = 25.0
 #: poor MAP, substeps 3 -> 14) by 50 nats, where that start was 39,000 nats above the
 #: current model and finishing it took 117 of the candidate's 163 s.
 ABANDON_NATS = 1000.0
-#: A fit held at the solver's limit (``Start.solver_edge``; its MAP a boundary point where
-#: Newton's steps past the limit are rejected) is fitted again from its own MAP, least
-#: squares then Newton (``prepare_start(..., from_fit=True)``), while its Newton decrement
-#: exceeds this [nats], at most :data:`EDGE_PASSES` times.  On a 131 s record hiding a pitch
-#: friction the base model held at 2 substeps ended at ``-log p`` = -63583 with a decrement
-#: of 355 nats; passes gave -64014 (66), -64106 (2.0), -64111 (0.02), 17-19 s each.  Left
-#: at -63583, every wrong candidate nesting it (fitted from it by least squares) beat it by
-#: 200-480 nats on the fitting window and 1400-2200 held out, all above the margin.
-EDGE_DECREMENT = 10.0
-EDGE_PASSES = 3
 #: "Off" of a parameter whose off value (its default) is a bound of its support, e.g.
 #: ``F_c = 0`` of a log coordinate: this fraction of its probe value, close enough to off
 #: that the start reproduces the current fit, inside the support so the fit can grow it.
@@ -247,7 +236,7 @@ def fitted_predictive(task: FitTask) -> Fitted:
     problem = make_problem(task.record, task.fit_window, task.score_window, model=model,
                            priors=model_priors(model, task.priors), error="iid")  # fmt: skip
     start, from_off = _nested_map(problem, task)
-    start = _settled(start, task)
+    start = settle_edge(start, seed=task.seed, newton_steps=task.newton_steps)
     params, x0 = start.map_point()
     params.update(zip(X0_NAMES, map(float, x0)))
     sites, importance = importance_resample(start, task.draws, seed=task.seed)
@@ -298,22 +287,6 @@ def _nested_map(problem, task: FitTask):
     if start is None or again.map_value < start.map_value:
         return again, True
     return start, False
-
-
-def _settled(start, task: FitTask):
-    """``start``, or, if it is held at the solver's limit short of convergence, its refit from
-    its own MAP at its substeps (:data:`EDGE_DECREMENT`), as often as that improves it."""
-    for _ in range(EDGE_PASSES):
-        if start.solver_edge is None or not start.map_decrement > EDGE_DECREMENT:
-            break
-        params, x0 = start.map_point()
-        params.update(zip(X0_NAMES, map(float, x0)))
-        again = prepare_start(start.problem, n_starts=1, seed=task.seed, guesses=(params,), grid=False,
-                              newton_steps=task.newton_steps, polish_best=1, from_fit=True)  # fmt: skip
-        if not again.map_value < start.map_value:
-            break
-        start = again
-    return start
 
 
 def fit_and_score(task: FitTask) -> dict:

@@ -25,7 +25,7 @@ __all__ = ["FIT_VERSION", "CandidateStore", "run_round", "task_signature"]
 #: a dead band between the record's voltage levels; 4: the held-out CRPS is stored beside
 #: the log score; 5: a still axis that a friction term holds starts at rate 0; 6: the MAP's
 #: substeps cover the viscous damping's decay; 7: a fit pinned at the solver's limit is held
-#: at 2 substeps and settled there, ``candidates.EDGE_DECREMENT``).
+#: at 2 substeps and settled there, ``inference.settle.EDGE_DECREMENT``).
 FIT_VERSION = 7
 
 

@@ -22,6 +22,7 @@ from heli_uq.inference.nuts import TARGET_ACCEPT as TARGET_ACCEPT
 from heli_uq.inference.nuts import resume_obstacle as resume_obstacle
 from heli_uq.inference.nuts import run_nuts as run_nuts
 from heli_uq.inference.sampler_run import SamplerRun as SamplerRun
+from heli_uq.inference.settle import settle_edge as settle_edge
 from heli_uq.inference.start import Start as Start
 from heli_uq.inference.start import prepare_start as prepare_start
 from heli_uq.inference.start import start_parameters as start_parameters
@@ -34,4 +35,4 @@ __all__ = ["Checkpoint", "LogDensity", "constrain_draws", "log_density_setup", "
            "masked_least_squares", "MapResult", "find_map", "laplace", "TARGET_ACCEPT",
            "SamplerRun", "run_nuts", "resume_obstacle", "run_laplace", "importance_resample", "Start",
            "least_squares_fit", "prepare_start", "start_parameters", "SAMPLERS", "run_manifest", "train",
-           "Training", "level_scaled_covariance"]  # fmt: skip
+           "Training", "level_scaled_covariance", "settle_edge"]  # fmt: skip

@@ -30,6 +30,7 @@ from heli_uq.inference import (
     run_emcee,
     run_laplace,
     run_nuts,
+    settle_edge,
 )
 from heli_uq.inference.draw_memory import check_draws_memory
 from heli_uq.io import atomic_write_text
@@ -253,6 +254,7 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
               "the first compiles the model)")  # fmt: skip
         start = prepare_start(problem, n_starts=max(n_starts, len(guesses)), seed=seed, log=stage,
                               guesses=guesses)  # fmt: skip
+        start = settle_edge(start, seed=seed, log=stage)
         stage(f"MAP done: -log p = {start.map_value:.6g}, Newton decrement "
               f"{start.map_decrement:.2g}, {start.problem.substeps} substeps")  # fmt: skip
         atomic_write_text(out / MAP_FILE, json.dumps(start.map_point()[0], indent=1))

@@ -120,7 +120,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     from heli_uq.data import load_data, parse_window
-    from heli_uq.model import X0_NAMES, build_model
+    from heli_uq.model import build_model
 
     train, test = parse_window(args.train), parse_window(args.test)
     record = load_data("experimental").window(train[0], test[1])
@@ -139,11 +139,10 @@ def main(argv=None) -> int:
             guess = starts[args.free_start]
         t0 = time.perf_counter()
         start = _fit(record, train, test, model, tilt, guess)
-        params, x0 = start.map_point()
-        guess = dict(params, **dict(zip(X0_NAMES, map(float, x0))))
+        guess = start.map_guess()
         if tilt is not None:
             starts[tilt] = guess
-        line = {"effects": list(EFFECTS), "a": float(params["a_yaw"]), "tilt_fixed": tilt is not None,
+        line = {"effects": list(EFFECTS), "a": float(guess["a_yaw"]), "tilt_fixed": tilt is not None,
                 "map_value": float(start.map_value), "map_decrement": float(start.map_decrement),
                 "substeps": int(start.problem.substeps), "map": guess}  # fmt: skip
         ys = _simulate(record, model, line)

@@ -277,7 +277,7 @@ def test_the_map_with_the_mass_fixed_fits_at_the_noise():
     record of the hybrid tests: 2.4 rad, -log p 12,800 nats above the unfixed MAP).  With
     the starts moved along the common scale the MAP fits at the noise."""
     from heli_uq.inference import prepare_start
-    from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model
+    from heli_uq.model import RIG_FIT, RIG_FIT_X0, X0_NAMES, build_model
     from heli_uq.model.prior import Prior
     from heli_uq.probability import PriorSet, make_problem
     from heli_uq.simulation import synthetic_experiment
@@ -291,6 +291,8 @@ def test_the_map_with_the_mass_fixed_fits_at_the_noise():
     start = prepare_start(problem, n_starts=1)
     params, x0 = start.map_point()
     assert params["m"] == RIG_FIT["m"]
+    guess = start.map_guess()  # the same point as one refit guess, initial state by name
+    assert guess == {**params, **dict(zip(X0_NAMES, x0.tolist()))}
     y = np.asarray(problem.solve(params, x0, problem.n_train).ys)[:, :2]
     rms = np.sqrt(np.mean((y - np.asarray(problem.y)) ** 2, axis=0))
     assert rms[0] < MAP_NOISE_RATIO * noise, rms
@@ -333,8 +335,7 @@ def test_a_map_whose_damping_sits_at_the_solvers_limit_says_so_and_is_held(synth
         def pinned(problem, params):
             return edge if problem.substeps == 1 or not pinned_only_at_one else None
 
-        for module in (start_module, substeps_module):
-            monkeypatch.setattr(module, "map_edge", pinned)
+        monkeypatch.setattr(substeps_module, "map_edge", pinned)
         caplog.clear()
         with caplog.at_level(logging.WARNING, logger="heli_uq"):
             start = start_module.prepare_start(synthetic_problem, n_starts=1, seed=0)
@@ -411,15 +412,16 @@ def test_laplace_draws_stiffer_than_the_map_raise_the_substeps(synthetic_problem
     import logging
 
     from heli_uq.inference import start as start_module
+    from heli_uq.inference import substeps as substeps_module
 
     need = synthetic_problem.substeps + 1
-    monkeypatch.setattr(start_module, "tail_substeps", lambda problem, *args: need)
+    monkeypatch.setattr(substeps_module, "tail_substeps", lambda problem, *args: need)
     with caplog.at_level(logging.INFO, logger="heli_uq"):
         start = start_module.prepare_start(synthetic_problem, n_starts=1, seed=0)
     assert start.problem.substeps == need
     assert start.density.problem.substeps == need
     assert start.map_decrement <= start_module.MAP_DECREMENT_MAX
-    lines = [r.getMessage() for r in caplog.records if r.name == "heli_uq.inference.start"]
+    lines = [r.getMessage() for r in caplog.records if r.name == "heli_uq.inference.substeps"]
     assert any(f"-> {need}" in line for line in lines), lines
 
 
@@ -654,8 +656,8 @@ def test_a_fit_held_at_the_solvers_limit_is_settled_by_refits_from_its_own_map(m
         solver_edge: dict | None = dataclasses.field(default_factory=lambda: {"axis": "pitch"})
         problem: str = "held at 2 substeps"
 
-        def map_point(self):
-            return {"D_theta": self.map_value}, np.zeros(len(X0_NAMES))
+        def map_guess(self):
+            return {"D_theta": self.map_value, **dict.fromkeys(X0_NAMES, 0.0)}
 
     def run(first, refits):
         queue, seen = list(refits), []

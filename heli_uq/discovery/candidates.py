@@ -51,7 +51,7 @@ from heli_uq.inference import constrain_draws, importance_resample, prepare_star
 from heli_uq.inference.laplace_sampler import PARETO_K_MAX
 from heli_uq.inference.start import PoorBasin
 from heli_uq.inference.substeps import guess_substeps
-from heli_uq.model import AXES, RIG_FIT, X0_NAMES, build_model
+from heli_uq.model import AXES, RIG_FIT, build_model
 from heli_uq.model.prior import Prior
 from heli_uq.output.inference_data import simulate_draws
 from heli_uq.probability import make_problem
@@ -237,8 +237,7 @@ def fitted_predictive(task: FitTask) -> Fitted:
                            priors=model_priors(model, task.priors), error="iid")  # fmt: skip
     start, from_off = _nested_map(problem, task)
     start = settle_edge(start, seed=task.seed, newton_steps=task.newton_steps)
-    params, x0 = start.map_point()
-    params.update(zip(X0_NAMES, map(float, x0)))
+    params = start.map_guess()
     sites, importance = importance_resample(start, task.draws, seed=task.seed)
     if not importance["pareto_k"] <= PARETO_K_MAX:  # not trusted: the plug-in predictive at the MAP
         sites = constrain_draws(start.density, np.repeat(start.x_map[None], task.draws, axis=0))

@@ -12,7 +12,6 @@ Layer 5 (imports :mod:`heli_uq.inference.start`).
 from __future__ import annotations
 
 from heli_uq.inference.start import Start, prepare_start
-from heli_uq.model import X0_NAMES
 
 __all__ = ["EDGE_DECREMENT", "EDGE_PASSES", "settle_edge"]
 
@@ -49,9 +48,7 @@ def settle_edge(start: Start, *, seed: int = 0, newton_steps: int | None = None,
     for _ in range(EDGE_PASSES):
         if start.solver_edge is None or not start.map_decrement > EDGE_DECREMENT:
             break
-        params, x0 = start.map_point()
-        params.update(zip(X0_NAMES, map(float, x0)))
-        again = prepare_start(start.problem, n_starts=1, seed=seed, guesses=(params,), grid=False,
+        again = prepare_start(start.problem, n_starts=1, seed=seed, guesses=(start.map_guess(),), grid=False,
                               newton_steps=newton_steps, polish_best=1, from_fit=True)  # fmt: skip
         if log is not None:
             log(f"MAP held at the solver's limit (Newton decrement {start.map_decrement:.3g}): refitted "

@@ -9,9 +9,10 @@ covariance, and the number of solver substeps the fitted parameters need.
    than the model's start values), they are fitted again with more substeps.
 2. **MAP** on the full log posterior (:func:`heli_uq.inference.map.find_map`): damped
    Newton steps from the least-squares fits (optionally after L-BFGS).
-3. **Substeps.**  A stiff effect (sharp friction) needs more RK4 substeps the larger its
-   fitted level; if the MAP needs more than the problem has, the problem is rebuilt with
-   them and the MAP polished again, as often as the polished MAP needs more, up to
+3. **Substeps** (steps 3 and 4: :func:`heli_uq.inference.substeps.cover_substeps`).  A
+   stiff effect (sharp friction) needs more RK4 substeps the larger its fitted level; if
+   the MAP needs more than the problem has, the problem is rebuilt with them and the MAP
+   polished again, as often as the polished MAP needs more, up to
    :data:`~heli_uq.simulation.stiffness.MAX_SUBSTEPS`.  A model that imitates a missing
    friction with damping stiffens at every raise (a pitch-friction record's base model:
    1 -> 2 -> 4 -> 8 -> 16 substeps).  Such a MAP sits at RK4's limit at every count
@@ -36,7 +37,6 @@ a local optimum, not necessarily the global one.
 from __future__ import annotations
 
 import dataclasses
-import logging
 import time
 
 import jax
@@ -48,12 +48,12 @@ from heli_uq.inference.density import LogDensity, constrain_draws, init_sites, l
 from heli_uq.inference.error_start import error_start, residual_rms
 from heli_uq.inference.gaussian import gaussian_draws
 from heli_uq.inference.least_squares import LSQ_SIGMA, grid_start, least_squares_fit, x0_guess
-from heli_uq.inference.map import NEWTON_STEPS, find_map, laplace, leave_saddles, newton_polish
-from heli_uq.inference.substeps import TAIL_DRAWS, map_edge, map_need, retry_substeps, tail_substeps
+from heli_uq.inference.map import NEWTON_STEPS, find_map, leave_saddles
+from heli_uq.inference.substeps import cover_substeps, retry_substeps
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.probability.problem import Problem
-from heli_uq.simulation.stiffness import MAX_SUBSTEPS, capped_substeps
+from heli_uq.simulation.stiffness import MAX_SUBSTEPS
 
 __all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "startable", "initial_draws",
            "whitening", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
@@ -250,6 +250,12 @@ class Start:
                   for n, p in self.problem.priors.params.items()}  # fmt: skip
         return params, np.array([float(best[n]) for n in X0_NAMES])
 
+    def map_guess(self) -> dict:
+        """The MAP as one guess dict for a refit (:func:`prepare_start`'s ``guesses``): every
+        model parameter [SI] and the initial state by name (``theta0`` ... [rad, rad/s])."""
+        params, x0 = self.map_point()
+        return {**params, **dict(zip(X0_NAMES, map(float, x0)))}
+
     def info(self) -> dict:
         """JSON-ready facts of the start (without the arrays)."""
         return {"map_value": float(self.map_value), "map_seconds": float(self.map_seconds),
@@ -362,39 +368,9 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
         moved = leave_saddles(density, x_map)
         if moved[4] > 0:
             x_map, value, grad_max, decrement = moved[:4]
-    edge = None  # raise the substeps until the MAP's stiffness is covered (or capped)
-    for _ in range(MAX_SUBSTEPS):
-        need, edge = map_need(problem, _map_values(problem, density, x_map), edge)
-        if need <= problem.substeps:
-            break
-        problem = problem.with_substeps(need)
-        density = log_density_setup(problem, seed=seed)
-        x_map, value, grad_max, decrement, _ = newton_polish(density, x_map, max(newton_steps, 1))
-    _, cov = laplace(density, x_map)
-    tail = problem.substeps if edge else tail_substeps(problem, density, x_map, cov, seed)  # pinned: held
-    need = capped_substeps(tail, "the Laplace approximation")
-    if need > problem.substeps:  # the posterior's spread reaches stiffer models than its mode
-        logging.getLogger(__name__).info(f"solver substeps {problem.substeps} -> {need}: the stiffest "
-                                         f"of {TAIL_DRAWS} Laplace draws needs them")  # fmt: skip
-        problem = problem.with_substeps(need)
-        density = log_density_setup(problem, seed=seed)
-        x_map, value, grad_max, decrement, _ = newton_polish(density, x_map, max(newton_steps, 1))
-        _, cov = laplace(density, x_map)
-    edge = map_edge(problem, _map_values(problem, density, x_map)) or edge
+    problem, density, (x_map, value, grad_max, decrement), cov, edge = cover_substeps(
+        problem, density, (x_map, value, grad_max, decrement), newton_steps, seed)
     limit = NETWORK_MAP_DECREMENT_MAX if network else MAP_DECREMENT_MAX
     return Start(problem, density, np.asarray(x_map), float(value), cov, time.perf_counter() - t0,
                  float(grad_max), float(decrement), limit, edge)
 
-
-def _map_values(problem: Problem, density: LogDensity, x) -> dict:
-    """The physical parameter values ``{name: float}`` at the unconstrained point ``x``."""
-    z = _full_z(problem, density.unravel(jnp.asarray(x)))
-    return {k: float(v) for k, v in problem.coords.to_physical(z).items()}
-
-
-def _full_z(problem: Problem, sites: dict):
-    """All coordinates (with ``log_J_pitch``) from unconstrained sites."""
-    coords = problem.coords
-    if not coords.marginal_scale:
-        return sites["z"]
-    return coords.marginal_log_prior(sites["z"], sites["scale_noise"])[1]

@@ -2,15 +2,20 @@
 set of starting guesses, and over the Laplace approximation's tail draws.
 
 A stiff effect (sharp friction, a large damping) needs more substeps the larger its level;
-:func:`heli_uq.inference.start.prepare_start` raises a problem's substeps with these.
+:func:`heli_uq.inference.start.prepare_start` raises a problem's substeps with these
+(:func:`cover_substeps`).
 """
 
 from __future__ import annotations
 
+import logging
+
+import jax.numpy as jnp
 import numpy as np
 
-from heli_uq.inference.density import LogDensity, constrain_draws
+from heli_uq.inference.density import LogDensity, constrain_draws, log_density_setup
 from heli_uq.inference.gaussian import gaussian_draws
+from heli_uq.inference.map import laplace, newton_polish
 from heli_uq.probability.problem import Problem
 from heli_uq.simulation.stiffness import (
     MAX_SUBSTEPS,
@@ -25,7 +30,8 @@ from heli_uq.simulation.stiffness import (
 )
 
 __all__ = ["TAIL_DRAWS", "EDGE_SUBSTEPS", "required_substeps", "decay_held", "map_need", "map_edge",
-           "tail_substeps", "guess_substeps", "retry_substeps"]  # fmt: skip
+           "tail_substeps", "guess_substeps", "retry_substeps", "cover_substeps",
+           "map_values"]  # fmt: skip
 
 #: Laplace draws (seeded) whose stiffness the substeps must cover (their maximum is about
 #: the 99.8 % quantile of the rate).  The output stage checks every posterior draw again
@@ -131,3 +137,67 @@ def retry_substeps(problem: Problem, guesses) -> int:
     (a fit of a nearby model, e.g. on a shorter window, may need more than the model's
     start values), at least twice the current number, at most :data:`MAX_SUBSTEPS`."""
     return min(max(2 * problem.substeps, guess_substeps(problem, guesses)), MAX_SUBSTEPS)
+
+
+def cover_substeps(problem: Problem, density: LogDensity, found: tuple, newton_steps: int, seed: int = 0):
+    """Raise ``problem``'s substeps until a MAP and its Laplace draws are covered.
+
+    Steps 3 and 4 of :mod:`heli_uq.inference.start`: while the MAP needs more substeps than
+    the problem has (:func:`map_need`; a fit pinned at the solver's limit is held at
+    :data:`EDGE_SUBSTEPS`), the problem is rebuilt with them and the MAP polished again;
+    then the Laplace covariance is computed and, unless the fit is pinned, the stiffness of
+    :data:`TAIL_DRAWS` of its draws checked (:func:`tail_substeps`), with one more raise,
+    polish and covariance if they need more.
+
+    Parameters
+    ----------
+    problem, density
+        The problem the MAP was found on and its log density.
+    found : tuple
+        ``(x_map, value, grad_max, decrement)``: the MAP (d,) in the sampler's
+        unconstrained coordinates, ``-log p`` [nats], ``max |grad|`` and Newton decrement.
+    newton_steps : int
+        Newton steps of each polish after a raise (at least 1).
+    seed : int
+        Seed of the log density and of the tail draws.
+
+    Returns
+    -------
+    tuple
+        ``(problem, density, found, covariance, edge)``: the problem on its final substeps,
+        its log density, the polished ``found``, the Laplace covariance (d, d) and the MAP's
+        viscous decay pinned at the solver's limit (:func:`map_edge`) or None.
+    """
+    x_map = found[0]
+    edge = None
+    for _ in range(MAX_SUBSTEPS):
+        need, edge = map_need(problem, map_values(problem, density, x_map), edge)
+        if need <= problem.substeps:
+            break
+        problem = problem.with_substeps(need)
+        density = log_density_setup(problem, seed=seed)
+        found = newton_polish(density, x_map, max(newton_steps, 1))[:4]
+        x_map = found[0]
+    _, cov = laplace(density, x_map)
+    tail = problem.substeps if edge else tail_substeps(problem, density, x_map, cov, seed)  # pinned: held
+    need = capped_substeps(tail, "the Laplace approximation")
+    if need > problem.substeps:  # the posterior's spread reaches stiffer models than its mode
+        logging.getLogger(__name__).info(f"solver substeps {problem.substeps} -> {need}: the stiffest "
+                                         f"of {TAIL_DRAWS} Laplace draws needs them")  # fmt: skip
+        problem = problem.with_substeps(need)
+        density = log_density_setup(problem, seed=seed)
+        found = newton_polish(density, x_map, max(newton_steps, 1))[:4]
+        x_map = found[0]
+        _, cov = laplace(density, x_map)
+    edge = map_edge(problem, map_values(problem, density, x_map)) or edge
+    return problem, density, tuple(found), cov, edge
+
+
+def map_values(problem: Problem, density: LogDensity, x) -> dict:
+    """The physical parameter values ``{name: float}`` at the unconstrained point ``x`` (d,)."""
+    sites = density.unravel(jnp.asarray(x))
+    coords = problem.coords
+    z = sites["z"]
+    if coords.marginal_scale:  # all coordinates, log_J_pitch included
+        z = coords.marginal_log_prior(z, sites["scale_noise"])[1]
+    return {k: float(v) for k, v in coords.to_physical(z).items()}

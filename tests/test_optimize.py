@@ -344,6 +344,7 @@ def test_a_map_whose_damping_sits_at_the_solvers_limit_says_so_and_is_held(synth
         assert len(lines) == 1 and "the fit damps pitch as hard as the solver allows" in lines[0], lines
         assert f"using {substeps_module.EDGE_SUBSTEPS}:" in lines[0] and "held at" in lines[0]
         assert "270 /s" in lines[0] and "smoother" not in lines[0]
+        assert ("at 1 substep(s) was pinned" in lines[0]) == pinned_only_at_one  # which MAP it was
         assert start.solver_edge == edge
 
 

@@ -89,9 +89,12 @@ def map_need(problem: Problem, params: dict, edge: dict | None = None) -> tuple[
     :data:`MAX_SUBSTEPS`, or for a fit pinned at the limit :data:`EDGE_SUBSTEPS` (at least
     the problem's substeps).  Below the cap the need is capped silently: the MAP is raised
     to the cap and checked again, so the warning is given once, on the MAP that stays; at
-    the cap it says the fit is pinned, or suggests a smoother friction.
+    the cap it says the fit is pinned (or that an earlier MAP of it was, if the one at the
+    cap is inside the limit), or suggests a smoother friction.
     """
-    edge = map_edge(problem, params) or edge
+    current = map_edge(problem, params)
+    earlier = current is None and edge is not None  # pinned before a raise, inside the limit now
+    edge = current or edge
     cap = MAX_SUBSTEPS if edge is None else max(EDGE_SUBSTEPS, problem.substeps)
     need = required_substeps(problem, params)
     if need > problem.substeps and edge is None and decay_held(problem, params, problem.substeps):
@@ -99,6 +102,9 @@ def map_need(problem: Problem, params: dict, edge: dict | None = None) -> tuple[
     if need <= cap or problem.substeps < cap:
         return min(need, cap), edge
     hint = SMOOTHER_FRICTION if edge is None else f"{edge_text(edge)}; {EDGE_HELD}"
+    if earlier:  # the warning is about the MAP that stays: say the edge was an earlier one's
+        hint = (f"this fit's MAP at {edge['substeps']} substep(s) was pinned at the solver's limit, its MAP at "
+                f"{problem.substeps} is inside it: {hint}")  # fmt: skip
     return capped_substeps(need, "the MAP", hint, cap), edge
 
 

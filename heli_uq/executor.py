@@ -19,6 +19,12 @@ an address (``tcp://host:8786``)
     An address where nothing answers within :data:`CONNECT_TIMEOUT` is a
     :class:`~heli_uq.errors.ParameterError`.
 
+The package's warnings (logger ``heli_uq``) that a task logs in a worker process come back
+with its result and are logged here, each distinct message once, naming its task; a message
+that more tasks gave is followed at the end by one line naming them (eleven candidate fits
+nesting one stiff base model gave the same 500-character warning eleven times).  In this
+process (``"serial"``) they are logged as they happen.
+
 A task whose worker process dies (Dask gives up on it after its retries) becomes a
 :class:`TaskFailed` like a task that raised; the others go on.  The workers of a
 ``LocalCluster`` that :func:`run_tasks` starts drop the one record Dask logs with a
@@ -58,6 +64,10 @@ CONNECT_TIMEOUT = "10s"
 #: Start of the message (logger ``distributed.worker``, with a traceback) of a worker
 #: whose heartbeat meets a scheduler that is closing.
 HEARTBEAT_RACE = "Failed to communicate with scheduler during heartbeat"
+#: The logger whose warnings a worker's task sends back (the package's, :mod:`heli_uq.log`).
+PACKAGE_LOGGER = "heli_uq"
+#: Characters of a repeated warning quoted in the line that names the other tasks.
+WARNING_HEAD = 60
 
 
 class ClosingRaceFilter(logging.Filter):
@@ -93,6 +103,50 @@ def _guarded(fn: Callable, arg):
         last = traceback.extract_tb(exc.__traceback__)[-1:] or [None]
         where = f" (at {pathlib.Path(last[0].filename).name}:{last[0].lineno})" if last[0] else ""
         return TaskFailed(error=f"{type(exc).__name__}: {exc}{where}")
+
+
+class _Caught(logging.Handler):
+    """Keeps the package's warnings of one task as ``(logger name, level, message)``."""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.records: list[tuple[str, int, str]] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append((record.name, record.levelno, record.getMessage()))
+
+
+def _guarded_in_worker(fn: Callable, arg):
+    """``(_guarded(fn, arg), warnings)``, the package's warnings of the task kept
+    (:class:`_Caught`) instead of written to the worker's stderr."""
+    logger = logging.getLogger(PACKAGE_LOGGER)
+    caught = _Caught()
+    logger.addHandler(caught)
+    try:
+        return _guarded(fn, arg), caught.records
+    finally:
+        logger.removeHandler(caught)
+
+
+class _Warnings:
+    """The tasks' warnings, logged once each in this process (module docstring)."""
+
+    def __init__(self):
+        self.tasks: dict[str, list[str]] = {}
+
+    def report(self, key, records) -> None:
+        for name, level, message in records:
+            tasks = self.tasks.setdefault(message, [])
+            if not tasks:
+                logging.getLogger(name).log(level, f"{message} (task {key})")
+            tasks.append(str(key))
+
+    def close(self) -> None:
+        for message, tasks in self.tasks.items():
+            if len(tasks) > 1:
+                logging.getLogger(__name__).warning(
+                    f"{len(tasks) - 1} more task(s) gave the warning of task {tasks[0]} "
+                    f"(\"{message[:WARNING_HEAD]}...\"): {', '.join(tasks[1:])}")  # fmt: skip
 
 
 def use_compilation_cache() -> str:
@@ -222,16 +276,19 @@ def run_tasks(fn: Callable, tasks: Mapping, *, scheduler: str | None = "local", 
             client.run(_quiet_closing_race)
         else:
             cluster, client = None, _connect(scheduler)
+        warned = _Warnings()
         try:
-            futures = {client.submit(_guarded, fn, tasks[k], key=f"heli_uq-{k}-{os.getpid()}",
+            futures = {client.submit(_guarded_in_worker, fn, tasks[k], key=f"heli_uq-{k}-{os.getpid()}",
                                      pure=False): k for k in keys}  # fmt: skip
             for future in as_completed(futures):
                 try:
-                    result = future.result()
+                    result, records = future.result()
                 except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: its worker died
-                    result = TaskFailed(error=f"{type(exc).__name__}: {exc}")
+                    result, records = TaskFailed(error=f"{type(exc).__name__}: {exc}"), []
+                warned.report(futures[future], records)
                 finish(futures[future], result)
         finally:
+            warned.close()
             client.close()
             if cluster is not None:
                 cluster.close()

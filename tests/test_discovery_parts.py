@@ -390,6 +390,44 @@ def test_run_tasks_reports_each_failure_and_finishes_the_rest(scheduler):
     assert sorted(seen) == ["a", "b", "c"]
 
 
+#: A warning every task of the test below logs, and one only its task "c" logs.
+SHARED_WARNING = "the MAP needs 4 solver substeps per sample; using 2"
+OWN_WARNING = "task c's own warning"
+
+
+def _square_and_warn(x):
+    import logging
+
+    logging.getLogger("heli_uq.simulation.stiffness").warning(SHARED_WARNING)
+    if x == 3:
+        logging.getLogger("heli_uq.inference.start").warning(OWN_WARNING)
+    logging.getLogger("heli_uq.simulation.stiffness").info("progress is not sent back")
+    return x * x
+
+
+def test_the_workers_warnings_are_logged_once_each_naming_the_tasks(caplog, capfd):
+    """Candidate fits nesting one stiff base model each logged the same long warning on
+    their worker's stderr (eleven times on a 12-candidate record).  Each distinct warning
+    is now logged once in the calling process, under its own logger, naming its task; a
+    line at the end names the other tasks that gave it; the workers print none of them."""
+    import logging
+
+    with caplog.at_level(logging.INFO, logger="heli_uq"):
+        out = run_tasks(_square_and_warn, {"a": 1, "b": 2, "c": 3}, scheduler="local", workers=2)
+    assert out == {"a": 1, "b": 4, "c": 9}
+    shared = [r for r in caplog.records if r.getMessage().startswith(SHARED_WARNING)]
+    assert len(shared) == 1 and shared[0].name == "heli_uq.simulation.stiffness", caplog.records
+    first = shared[0].getMessage().removeprefix(SHARED_WARNING + " (task ").rstrip(")")
+    own = [r for r in caplog.records if r.getMessage() == f"{OWN_WARNING} (task c)"]
+    assert len(own) == 1 and own[0].name == "heli_uq.inference.start" and own[0].levelno == logging.WARNING
+    (more,) = [r for r in caplog.records if r.name == "heli_uq.executor"]
+    others = sorted(set("abc") - {first})
+    assert more.getMessage().startswith(f"2 more task(s) gave the warning of task {first}")
+    assert sorted(more.getMessage().rsplit(": ", 1)[1].split(", ")) == others
+    assert not any("progress" in r.getMessage() for r in caplog.records)
+    assert SHARED_WARNING not in capfd.readouterr().err  # not printed by the workers
+
+
 UNGUARDED_SCRIPT = """
 from heli_uq.executor import run_tasks
 

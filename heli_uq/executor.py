@@ -139,7 +139,8 @@ class _Warnings:
             tasks = self.tasks.setdefault(message, [])
             if not tasks:
                 logging.getLogger(name).log(level, f"{message} (task {key})")
-            tasks.append(str(key))
+            if str(key) not in tasks:  # a task that gave it twice (a MAP refitted from itself)
+                tasks.append(str(key))
 
     def close(self) -> None:
         for message, tasks in self.tasks.items():

@@ -52,10 +52,26 @@ class _SysStreamHandler(logging.StreamHandler):
         pass
 
 
+class _Once(logging.Filter):
+    """Passes a message the first time only: a warning repeated word for word (a MAP refitted
+    from itself meets the same substep cap each pass) says nothing the first did not."""
+
+    def __init__(self):
+        super().__init__()
+        self.seen: set[str] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        new = message not in self.seen
+        self.seen.add(message)
+        return new
+
+
 def configure_cli(quiet: bool) -> None:
     """Show the package's INFO messages on stdout, one line each, or none of them when
     ``quiet``; warnings and errors go to stderr as one line ``warning: <message>`` either
-    way (logging's own last-resort output stops as soon as the logger has any handler).
+    way (logging's own last-resort output stops as soon as the logger has any handler),
+    each distinct warning once.
     arviz's notice of its coming 1.0 refactor (a ``FutureWarning`` of four lines, printed
     on its first import each day) is not shown: it is about arviz, not about the run.
     Idempotent."""
@@ -67,6 +83,7 @@ def configure_cli(quiet: bool) -> None:
     warning = _SysStreamHandler("stderr")
     warning.setLevel(logging.WARNING)
     warning.setFormatter(_LevelFormatter())
+    warning.addFilter(_Once())
     logger.addHandler(warning)
     if not quiet:
         handler = _SysStreamHandler("stdout")

@@ -374,6 +374,23 @@ def test_a_package_warning_reaches_stderr_as_one_line(tmp_path, capsys, quiet):
 
 
 
+def test_a_warning_repeated_word_for_word_is_shown_once(capsys):
+    """A MAP refitted from itself (discover settling a base model held at the solver's
+    limit) met the same substep cap at each pass, and the command printed the same
+    500-character warning three times.  The command's stderr shows each distinct warning
+    once; another message, however close, is shown."""
+    import logging
+
+    from heli_uq.log import configure_cli
+
+    configure_cli(True)
+    logger = logging.getLogger("heli_uq.simulation.stiffness")
+    for message in ("the MAP needs 4 substeps", "the MAP needs 4 substeps", "the MAP needs 8 substeps"):
+        logger.warning(message)
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == ["warning: the MAP needs 4 substeps", "warning: the MAP needs 8 substeps"], lines
+
+
 @pytest.mark.parametrize("configured", [False, True])
 def test_arviz_daily_notice_is_not_shown_by_the_command(tmp_path, configured):
     """arviz prints a four-line FutureWarning on its first import each day (its stamp file

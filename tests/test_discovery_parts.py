@@ -398,7 +398,8 @@ OWN_WARNING = "task c's own warning"
 def _square_and_warn(x):
     import logging
 
-    logging.getLogger("heli_uq.simulation.stiffness").warning(SHARED_WARNING)
+    for _ in range(1 + (x == 2)):  # task "b" gives it twice
+        logging.getLogger("heli_uq.simulation.stiffness").warning(SHARED_WARNING)
     if x == 3:
         logging.getLogger("heli_uq.inference.start").warning(OWN_WARNING)
     logging.getLogger("heli_uq.simulation.stiffness").info("progress is not sent back")

@@ -103,8 +103,8 @@ def map_need(problem: Problem, params: dict, edge: dict | None = None) -> tuple[
         return min(need, cap), edge
     hint = SMOOTHER_FRICTION if edge is None else f"{edge_text(edge)}; {EDGE_HELD}"
     if earlier:  # the warning is about the MAP that stays: say the edge was an earlier one's
-        hint = (f"this fit's MAP at {edge['substeps']} substep(s) was pinned at the solver's limit, its MAP at "
-                f"{problem.substeps} is inside it: {hint}")  # fmt: skip
+        hint = (f"this fit's MAP at {edge['substeps']} substep(s) was pinned at the solver's limit, "
+                f"its MAP at {problem.substeps} is inside it: {hint}")  # fmt: skip
     return capped_substeps(need, "the MAP", hint, cap), edge
 
 

@@ -147,7 +147,12 @@ class _Warnings:
             if len(tasks) > 1:
                 logging.getLogger(__name__).warning(
                     f"{len(tasks) - 1} more task(s) gave the warning of task {tasks[0]} "
-                    f"(\"{message[:WARNING_HEAD]}...\"): {', '.join(tasks[1:])}")  # fmt: skip
+                    f"(\"{_head(message)}\"): {', '.join(tasks[1:])}")  # fmt: skip
+
+
+def _head(message: str) -> str:
+    """The first :data:`WARNING_HEAD` characters of ``message``, "..." marking a cut."""
+    return message if len(message) <= WARNING_HEAD else f"{message[:WARNING_HEAD]}..."
 
 
 def use_compilation_cache() -> str:

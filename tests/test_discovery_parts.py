@@ -423,11 +423,32 @@ def test_the_workers_warnings_are_logged_once_each_naming_the_tasks(caplog, capf
     assert len(own) == 1 and own[0].name == "heli_uq.inference.start" and own[0].levelno == logging.WARNING
     (more,) = [r for r in caplog.records if r.name == "heli_uq.executor"]
     others = sorted(set("abc") - {first})
-    assert more.getMessage().startswith(f"2 more task(s) gave the warning of task {first}")
+    quoted = f"2 more task(s) gave the warning of task {first} (\"{SHARED_WARNING}\"):"  # short: whole
+    assert more.getMessage().startswith(quoted)
     assert sorted(more.getMessage().rsplit(": ", 1)[1].split(", ")) == others
     assert not any("progress" in r.getMessage() for r in caplog.records)
     printed = capfd.readouterr().err.splitlines()  # (the calling process may print its own lines)
     assert not any(line.endswith(SHARED_WARNING) for line in printed), printed  # no worker printed it
+
+
+def test_the_repeat_line_quotes_a_long_warning_cut_and_a_short_one_whole(caplog):
+    """The line naming the other tasks quotes the warning's head: a warning longer than
+    :data:`~heli_uq.executor.WARNING_HEAD` is cut there and marked "...", a shorter one is
+    quoted as it is (no "..." after a whole sentence)."""
+    import logging
+
+    from heli_uq.executor import WARNING_HEAD, _Warnings
+
+    long = "x" * WARNING_HEAD + "the tail"
+    warnings = _Warnings()
+    for task in "ab":
+        warnings.report(task, [("heli_uq.inference.start", logging.WARNING, long),
+                               ("heli_uq.inference.start", logging.WARNING, "short")])  # fmt: skip
+    with caplog.at_level(logging.WARNING, logger="heli_uq"):
+        warnings.close()
+    lines = [r.getMessage() for r in caplog.records if r.name == "heli_uq.executor"]
+    assert lines == [f"1 more task(s) gave the warning of task a (\"{'x' * WARNING_HEAD}...\"): b",
+                     "1 more task(s) gave the warning of task a (\"short\"): b"]  # fmt: skip
 
 
 UNGUARDED_SCRIPT = """

@@ -180,9 +180,7 @@ def cover_substeps(problem: Problem, density: LogDensity, found: tuple, newton_s
         need, edge = map_need(problem, map_values(problem, density, x_map), edge)
         if need <= problem.substeps:
             break
-        problem = problem.with_substeps(need)
-        density = log_density_setup(problem, seed=seed)
-        found = newton_polish(density, x_map, max(newton_steps, 1))[:4]
+        problem, density, found = _polished_at(problem, need, x_map, newton_steps, seed)
         x_map = found[0]
     _, cov = laplace(density, x_map)
     tail = problem.substeps if edge else tail_substeps(problem, density, x_map, cov, seed)  # pinned: held
@@ -190,13 +188,19 @@ def cover_substeps(problem: Problem, density: LogDensity, found: tuple, newton_s
     if need > problem.substeps:  # the posterior's spread reaches stiffer models than its mode
         logging.getLogger(__name__).info(f"solver substeps {problem.substeps} -> {need}: the stiffest "
                                          f"of {TAIL_DRAWS} Laplace draws needs them")  # fmt: skip
-        problem = problem.with_substeps(need)
-        density = log_density_setup(problem, seed=seed)
-        found = newton_polish(density, x_map, max(newton_steps, 1))[:4]
+        problem, density, found = _polished_at(problem, need, x_map, newton_steps, seed)
         x_map = found[0]
         _, cov = laplace(density, x_map)
     edge = map_edge(problem, map_values(problem, density, x_map)) or edge
     return problem, density, tuple(found), cov, edge
+
+
+def _polished_at(problem: Problem, substeps: int, x_map, newton_steps: int, seed: int):
+    """``(problem, density, found)``: ``problem`` rebuilt on ``substeps``, its log density,
+    and the MAP ``x_map`` polished on it (at least one Newton step)."""
+    problem = problem.with_substeps(substeps)
+    density = log_density_setup(problem, seed=seed)
+    return problem, density, tuple(newton_polish(density, x_map, max(newton_steps, 1))[:4])
 
 
 def map_values(problem: Problem, density: LogDensity, x) -> dict:

@@ -52,7 +52,7 @@ def measure(way: str, seconds: float) -> dict:
     from numpyro.infer import NUTS
 
     from heli_uq.inference.density import log_density_setup
-    from heli_uq.inference.nuts import _chain_functions
+    from heli_uq.inference.nuts_blocks import chain_functions
     from heli_uq.probability import make_problem
     from heli_uq.simulation import synthetic_experiment
 
@@ -71,7 +71,7 @@ def measure(way: str, seconds: float) -> dict:
     density = log_density_setup(make_problem(record, error="iid"))
     potential = density.potential if way == "plain" else density.potential_jit
     kernel = NUTS(potential_fn=potential, dense_mass=True, max_tree_depth=6)
-    init, block = _chain_functions(kernel, 10, parallel=False)  # the sampler's own programs
+    init, block = chain_functions(kernel, 10, parallel=False)  # the sampler's own programs
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
     xs = jnp.stack([jnp.asarray(density.x_init)] * 2)
     out = {}

@@ -12,7 +12,8 @@
 4. **Bayesian**: prior-to-posterior contraction ``1 - var_post / var_prior`` per coordinate
    and along each null direction, from a given ``posterior.nc`` or, without one, from
    the Gaussian (Laplace) approximation ``(F + P)^-1`` with ``P`` the prior precision;
-5. a **cross-check** of the three views, listing where they disagree and why;
+5. a **cross-check** of the three views, listing where they disagree and why
+   (:mod:`heli_uq.identifiability.cross_check`);
 
 and writes ``identifiability.json``, ``identifiability.md`` and the figures to a directory.
 Priors are the package's (:class:`heli_uq.probability.PriorSet`): their central ``PRIOR_RANGE_SD``-sigma
@@ -32,6 +33,7 @@ import numpy as np
 
 from heli_uq.data.record import Experiment
 from heli_uq.errors import ParameterError
+from heli_uq.identifiability.cross_check import cross_check
 from heli_uq.identifiability.fisher import fisher_information, fit_likelihood, precision_draws
 from heli_uq.identifiability.profiles import THRESHOLD_95, classify, profile_likelihood
 from heli_uq.identifiability.structural import ParameterVector, random_points, structural_analysis
@@ -46,17 +48,10 @@ from heli_uq.probability.priors import PriorSet, RecordStart
 from heli_uq.probability.problem import make_problem
 
 __all__ = ["identifiability_report", "prior_moments", "draws_in_w", "contraction",
-           "profile_coordinates", "cross_check", "PRIOR_RANGE_SD"]  # fmt: skip
+           "profile_coordinates", "PRIOR_RANGE_SD"]  # fmt: skip
 
 #: Half-width of the explored prior range, in prior standard deviations (of the log for log-normals).
 PRIOR_RANGE_SD = 2.0
-
-#: Contraction below this counts as "the data did not inform it"; above HIGH as "well informed".
-CONTRACTION_LOW = 0.1
-CONTRACTION_HIGH = 0.5
-
-#: A null direction's loading above this counts the coordinate as taking part in it.
-LOADING_PART = 0.1
 
 #: Draws of the Laplace approximation used for the pair plot.
 LAPLACE_DRAWS = 4000
@@ -192,59 +187,6 @@ def profile_coordinates(pv: ParameterVector, fit, prior_mean, prior_sd, null_bas
         if log is not None:
             log(f"  {name:14s} {profiles[-1].classification}")
     return profiles
-
-
-def cross_check(names, structural, profiles, per_contraction, null_contraction) -> list[dict]:
-    """Compare the three views; one entry per check with ``agree`` and a reason."""
-    out = []
-    prof = {p.name: p for p in profiles}
-    for d, c in zip(structural["null_directions"], null_contraction):
-        parts = [n for n, v in d["loadings"].items() if abs(v) > LOADING_PART]
-        flat = [n for n in parts if prof[n].flat]
-        agree = len(flat) == len(parts) and c < CONTRACTION_LOW
-        detail = (f"null direction '{d['key']}' ({', '.join(parts)}): profiles flat for "
-                  f"{len(flat)}/{len(parts)}, contraction along it {c:.3f}")
-        if not agree:
-            why = []
-            if len(flat) < len(parts):
-                why.append("a profile that rises along a structural null direction means the "
-                           "direction is null only locally: it runs into a bound (e.g. J_bc > 0 "
-                           "ends the r_c-m-J_bc trade at r_c = M11 / (m r_c)) or a degenerate "
-                           "value, or the re-optimisation did not follow a curved valley")
-            if c >= CONTRACTION_LOW:
-                why.append("contraction along an exactly null direction comes from the prior "
-                           "(non-isotropic prior sds) or from a posterior that is not converged")
-            detail += "; " + "; ".join(why)
-        out.append({"check": "null_direction", "subject": d["key"], "agree": bool(agree),
-                    "detail": detail})  # fmt: skip
-    for i, n in enumerate(names):
-        p = prof[n]
-        c = float(per_contraction[i])
-        if p.classification == "identifiable":
-            width = p.upper - p.lower
-            agree = c >= CONTRACTION_HIGH
-            detail = f"{n}: identifiable, 95 % profile interval width {width:.3g}; contraction {c:.3f}"
-            if not agree:
-                detail += ("; a narrow profile with little contraction means the prior is as "
-                           "narrow as the likelihood, or the posterior and the fit disagree")
-        elif p.classification == "structurally_non_identifiable":
-            in_null = any(abs(d["loadings"].get(n, 0.0)) > LOADING_PART
-                          for d in structural["null_directions"])  # fmt: skip
-            agree = in_null
-            detail = f"{n}: flat profile and on a structural null direction; contraction {c:.3f}"
-            if c >= CONTRACTION_LOW:
-                detail += (" (its marginal contracts because the prior ties it to the identified "
-                           "ratios: along the null direction itself the contraction is ~0)")
-        else:
-            agree = c < 1.0 - 1e-9
-            detail = (f"{n}: practically non-identifiable (profile crosses the threshold on "
-                      f"{int(p.lower is not None) + int(p.upper is not None)} side(s) within the "
-                      f"prior range); contraction {c:.3f}")
-            if p.flat:
-                detail += ("; the profile is flat although the sensitivities have full rank: a "
-                           "direction so weakly identified that only the prior bounds it")
-        out.append({"check": "parameter", "subject": n, "agree": bool(agree), "detail": detail})
-    return out
 
 
 def identifiability_report(record: Experiment, out_dir, *, model: HeliModel | None = None,

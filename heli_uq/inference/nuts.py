@@ -10,7 +10,8 @@ so chains do not start in the regime where the model flies off.  Draws are produ
 interrupted run with the same seed stream (same seed, same draws).
 
 The chains advance in short compiled *blocks* of NUTS iterations (numpyro's kernel, all
-chains at once: one device per chain when there are enough, else vectorised), each cut
+chains at once: one device per chain when there are enough, else vectorised;
+:mod:`heli_uq.inference.nuts_blocks`), each cut
 to about :data:`BLOCK_SECONDS` of work.  Between blocks the sampler reports progress
 (warm-up or sampling, iterations, divergences per chain) and honours an interrupt: the
 first SIGINT saves the draws finished so far (or the warm-up state) and raises
@@ -28,17 +29,23 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import lax
 from numpyro.infer import NUTS
 
 from heli_uq.errors import ParameterError
 from heli_uq.inference import warmup_limit
 from heli_uq.inference.checkpoint import Checkpoint
-from heli_uq.inference.density import constrain_draws, coordinate_names, log_density_setup
+from heli_uq.inference.density import coordinate_names, log_density_setup
 from heli_uq.inference.draw_memory import check_draws_memory
 from heli_uq.inference.interrupt import Interrupted, Progress, deferred_interrupt
 from heli_uq.inference.level_scale import level_scaled_covariance
 from heli_uq.inference.manifest import run_manifest
+from heli_uq.inference.nuts_blocks import (
+    BLOCK_MAX,
+    chain_functions,
+    constrained_draws,
+    progress_text,
+    save_chunk,
+)
 from heli_uq.inference.sampler_run import SamplerRun
 from heli_uq.inference.start import Start, initial_draws, prepare_start
 from heli_uq.inference.whiten import SamplerMap, choose_walls
@@ -46,7 +53,6 @@ from heli_uq.probability.problem import Problem
 
 __all__ = ["run_nuts", "resume_obstacle", "TARGET_ACCEPT", "MIN_DRAWS_AT_LIMIT"]
 
-NUTS_EXTRA_FIELDS = ("diverging", "num_steps", "energy", "accept_prob", "potential_energy")
 #: Default target acceptance of the step-size adaptation.  On the full rig record
 #: (4 x (1000 + 1000), iid errors), with one-sided walls mapped (:mod:`whiten`): 0.9 gave
 #: no divergence, 9.5 leapfrog steps per draw and 9.7 min; 0.95 none, 13.7 steps and
@@ -55,8 +61,6 @@ TARGET_ACCEPT = 0.9
 CHUNK_DIR = "chunks"
 #: Default draws per saved chunk.
 CHUNK = 250
-#: Most NUTS iterations per compiled block (the size of its output buffers).
-BLOCK_MAX = 50
 #: Target wall time of one block [s]: the latency of an interrupt and of progress lines.
 BLOCK_SECONDS = 2.0
 #: Iterations of the first block (it includes compiling, so it sets no pace).
@@ -66,62 +70,19 @@ FIRST_BLOCK = 2
 MIN_DRAWS_AT_LIMIT = 100
 
 
-def _start_info(start: Start) -> dict:
-    return dict(start.info(), x_map=np.asarray(start.x_map), covariance=np.asarray(start.covariance))
-
-
-def _chain_functions(kernel, warmup: int, parallel: bool):
-    """``init(keys, w0) -> state`` and ``block(state, n) -> (state, out)`` for all chains:
-    ``n`` (<= :data:`BLOCK_MAX`, traced: one compilation) NUTS iterations of every chain,
-    ``out`` = per-iteration ``(w, diverging, num_steps, energy, accept_prob,
-    potential_energy)`` in buffers of :data:`BLOCK_MAX` rows (the first ``n`` are set)."""
-
-    def init_one(key, w0):
-        return kernel.init(key, warmup, w0, (), {})
-
-    def fields(s):
-        return (s.z, s.diverging, s.num_steps, s.energy, s.accept_prob, s.potential_energy)
-
-    def block_one(state, n):
-        def body(i, carry):
-            s, out = carry
-            s = kernel.sample(s, (), {})
-            return s, tuple(o.at[i].set(v) for o, v in zip(out, fields(s), strict=True))
-
-        out = tuple(jnp.zeros((BLOCK_MAX,) + jnp.shape(v), jnp.result_type(v)) for v in fields(state))
-        return lax.fori_loop(0, n, body, (state, out))
-
-    if parallel:
-        return jax.pmap(init_one), jax.pmap(block_one, in_axes=(0, None))
-    return jax.jit(jax.vmap(init_one)), jax.jit(jax.vmap(block_one, in_axes=(0, None)))
-
-
-def _save_chunk(checkpoint: Checkpoint, index: int, pending: list, state, smap: SamplerMap) -> dict:
-    """Write the draws of ``pending`` blocks (``w`` -> sampler coordinates ``x``) with the
-    state to continue from, as chunk ``index``; returns the record."""
-    w, *stats = (np.concatenate(parts, axis=1) for parts in zip(*pending, strict=True))
-    record = {"x": smap.x(w), "stats": dict(zip(NUTS_EXTRA_FIELDS, stats, strict=True)),
-              "state": jax.device_get(state)}  # fmt: skip
-    checkpoint.save("nuts", index, record)
-    return record
-
-
-def _progress_text(it: int, warmup: int, draws: int, chains: int, pending: list, records: list,
-                   seconds: float) -> str:  # fmt: skip
-    """``"NUTS sampling (4 chains): 120/500 draws, 35 s; divergences per chain 0 0 1 0"``."""
-    if it <= warmup and not records and not pending:
-        return f"NUTS warm-up ({chains} chains): {it}/{warmup} iterations, {seconds:.0f} s"
-    div = [r["stats"]["diverging"] for r in records] + [p[1] for p in pending]
-    per_chain = np.concatenate(div, axis=1).sum(axis=1) if div else np.zeros(chains, int)
-    return (f"NUTS sampling ({chains} chains): {it - warmup}/{draws} draws, {seconds:.0f} s; "
-            "divergences per chain " + " ".join(str(int(d)) for d in per_chain))
-
-
-def _constrained(density, records: list[dict], chains: int, draws: int | None = None) -> dict:
-    """The saved chunks' first ``draws`` per chain, named and constrained: (chains, draws, ...)."""
-    x = np.concatenate([r["x"] for r in records], axis=1)[:, :draws]
-    flat = constrain_draws(density, x.reshape(-1, x.shape[-1]))
-    return {k: v.reshape((chains, x.shape[1]) + v.shape[1:]) for k, v in flat.items()}
+def _fresh_start(problem: Problem, start: Start | None, seed: int):
+    """``(info, density)`` of a new run: the MAP start (computed if ``start`` is None), its
+    level-scaled Laplace covariance as the metric and the coordinates mapped for a
+    one-sided wall (module :mod:`heli_uq.inference.whiten`)."""
+    start = prepare_start(problem, seed=seed) if start is None else start
+    info = dict(start.info(), x_map=np.asarray(start.x_map), covariance=np.asarray(start.covariance))
+    potential = start.density.potential_jit
+    info["covariance"], factors = level_scaled_covariance(potential, info["x_map"], start.map_value,
+                                                          info["covariance"])  # fmt: skip
+    info["metric_factors"] = [float(f) for f in factors]
+    logs = [i for i, name in enumerate(coordinate_names(start.density)) if name.startswith("z[log_")]
+    info["walls"] = [list(w) for w in choose_walls(potential, info["x_map"], info["covariance"], logs)]
+    return info, start.density
 
 
 def _manifest(problem: Problem, **settings) -> dict:
@@ -239,16 +200,8 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     records = checkpoint.load("nuts") if info is not None else []
     warm_record = checkpoint.load("nuts_warmup") if info is not None else []
     if info is None:
-        start = prepare_start(problem, seed=seed) if start is None else start
-        info = _start_info(start)
-        info["covariance"], factors = level_scaled_covariance(start.density.potential_jit, info["x_map"],
-                                                              start.map_value, info["covariance"])
-        info["metric_factors"] = [float(f) for f in factors]
-        logs = [i for i, name in enumerate(coordinate_names(start.density)) if name.startswith("z[log_")]
-        walls = choose_walls(start.density.potential_jit, info["x_map"], info["covariance"], logs)
-        info["walls"] = [list(w) for w in walls]
+        info, density = _fresh_start(problem, start, seed)
         checkpoint.start_new(info, manifest)
-        density = start.density
     else:
         density = log_density_setup(problem.with_substeps(info["substeps"]), seed=seed)
     problem = density.problem
@@ -267,13 +220,13 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     # studies/bench_nuts_trace.py).
     potential_jit = jax.jit(potential)
 
-    def chain_functions(warmup, adapt_mass_matrix):
+    def kernel_blocks(warmup, adapt_mass_matrix):
         kernel = NUTS(potential_fn=potential_jit, dense_mass=True, max_tree_depth=max_tree_depth,
                       target_accept_prob=target_accept, adapt_mass_matrix=adapt_mass_matrix)
-        return _chain_functions(kernel, warmup, parallel)
+        return chain_functions(kernel, warmup, parallel)
 
     parallel = jax.local_device_count() >= chains and chains > 1
-    init, block = chain_functions(warmup, adapt_mass_matrix)
+    init, block = kernel_blocks(warmup, adapt_mass_matrix)
     done = sum(r["x"].shape[1] for r in records)
     requested_draws = draws
     if max_draws is not None and done > draws:  # resumed after continuing past the request
@@ -332,7 +285,7 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
                     info["warmup_cut"] = {"used": cut, "pace_s": pace, "discarded_iterations": it}
                     checkpoint.update_start(info)
                     warmup, adapt_mass_matrix, total = cut, False, cut + draws
-                    init, block = chain_functions(warmup, adapt_mass_matrix)
+                    init, block = kernel_blocks(warmup, adapt_mass_matrix)
                     keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 1), chains)
                     state, it, warm_seconds, n_block, paced = init(keys, state.z), 0, 0.0, FIRST_BLOCK, False
                     bar.close()  # ends a status line before the message
@@ -344,14 +297,14 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
             if paced:  # the first block compiles: the pace is taken from the later ones
                 n_block = int(np.clip(round(BLOCK_SECONDS * n / max(seconds, 1e-9)), 1, BLOCK_MAX))
             paced = True
-            bar.update(_progress_text(it, warmup, draws, chains, pending, records,
+            bar.update(progress_text(it, warmup, draws, chains, pending, records,
                                       time.perf_counter() - t_loop))  # fmt: skip
             if it == limit and pending:
-                records.append(_save_chunk(checkpoint, len(records), pending, state, smap))
+                records.append(save_chunk(checkpoint, len(records), pending, state, smap))
                 done, pending = done + records[-1]["x"].shape[1], []
             if flag.requested and it < total:
                 if pending:
-                    records.append(_save_chunk(checkpoint, len(records), pending, state, smap))
+                    records.append(save_chunk(checkpoint, len(records), pending, state, smap))
                     done = done + records[-1]["x"].shape[1]
                 if it <= warmup:
                     checkpoint.save("nuts_warmup", 0, {"state": state, "iteration": it})
@@ -365,7 +318,7 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
                     and kept >= min(draws, MIN_DRAWS_AT_LIMIT)
                     and time.perf_counter() - t_start > time_limit):  # fmt: skip
                 if pending:
-                    records.append(_save_chunk(checkpoint, len(records), pending, state, smap))
+                    records.append(save_chunk(checkpoint, len(records), pending, state, smap))
                     done, pending = done + records[-1]["x"].shape[1], []
                 if done < requested_draws:
                     info["draws_requested"] = requested_draws
@@ -373,14 +326,14 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
                 break
             if (it == total and max_draws is not None and draws < max_draws and not flag.requested
                     and (time_limit is None or time.perf_counter() - t_start < time_limit)
-                    and not converged(_constrained(density, records, chains))):  # fmt: skip
+                    and not converged(constrained_draws(density, records, chains))):  # fmt: skip
                 draws = min(draws + chunk, max_draws)
                 total = warmup + draws
-    bar.close(_progress_text(it, warmup, draws, chains, [], records, time.perf_counter() - t_loop))
+    bar.close(progress_text(it, warmup, draws, chains, [], records, time.perf_counter() - t_loop))
     if flag.requested:  # in the last block: every draw is saved, stop before post-processing
         raise Interrupted(f"all {draws} draws per chain saved in {checkpoint.directory}")
     method = "parallel" if parallel else "vectorized"
-    samples = _constrained(density, records, chains, draws)
+    samples = constrained_draws(density, records, chains, draws)
     stats = {k: np.concatenate([r["stats"][k] for r in records], axis=1)[:, :draws]
              for k in records[0]["stats"]}  # fmt: skip
     out_info = {k: v for k, v in info.items() if k not in ("x_map", "covariance")}

@@ -22,7 +22,7 @@ the physics (every inertia free unless ``--fix-mass``):
 * with ``--check-named`` (implies ``--name-effects``): before the refit the named effects
   (or, if none is named, the credible ones that explain too little to be named) are
   checked on held-out blocks of the training window by ``discover`` restricted to them
-  (:func:`heli_uq.discovery.network_effects.check_candidates`; needs a training window of
+  (:func:`heli_uq.discovery.network_check.check_candidates`; needs a training window of
   at least 20 s, e.g. ``--seconds 40``), and only what it adds is refitted.
 
 One JSON line per posterior goes to ``--out`` (default
@@ -146,7 +146,7 @@ def _check(args, record, train, named, run_dir) -> dict:
     what it adds, its candidates' held-out scores and its decision (or why it cannot run:
     the named effects are then refitted unchecked)."""
     from heli_uq.discovery import discover
-    from heli_uq.discovery.network_effects import check_candidates
+    from heli_uq.discovery.network_check import check_candidates
     from heli_uq.errors import ParameterError
 
     candidates = check_candidates({"yaw": named})
@@ -167,7 +167,8 @@ def _name_and_refit(args, record, train, test, priors, idata, run_dir, hidden, t
     refit in the network's place: its test yaw fit and the hidden values' 95 % intervals."""
     import numpy as np
 
-    from heli_uq.discovery.network_effects import check_candidates, network_effects_of
+    from heli_uq.discovery.network_check import check_candidates
+    from heli_uq.discovery.network_effects import network_effects_of
     from heli_uq.discovery.network_equation import equation_model
     from heli_uq.output import sample_posterior
     from heli_uq.output.inference_data import load_posterior

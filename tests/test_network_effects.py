@@ -7,10 +7,9 @@ sign, name nothing; the named effects replace the network."""
 import numpy as np
 import pytest
 
+from heli_uq.discovery.network_check import check_candidates, check_line
 from heli_uq.discovery.network_effects import (
     EXPLAINED_MIN,
-    check_candidates,
-    check_line,
     effect_columns,
     effects_sentence,
     input_dependence,

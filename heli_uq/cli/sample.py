@@ -117,12 +117,8 @@ def _name_state_networks(args, model, idata, out, summary: dict, window) -> None
     (:func:`heli_uq.discovery.network_effects.network_effects_of`), printed and stored in
     summary.json as ``network_effects``, and the ``discover`` command that checks the named
     effects on held-out blocks of the training ``window`` ``(a, b)`` [s]."""
-    from heli_uq.discovery.network_effects import (
-        check_line,
-        effects_sentence,
-        network_effects_of,
-        state_networks,
-    )
+    from heli_uq.discovery.network_check import check_line
+    from heli_uq.discovery.network_effects import effects_sentence, network_effects_of, state_networks
     from heli_uq.model.spec import model_from_description
     from heli_uq.output.posterior_study import write_summary
 

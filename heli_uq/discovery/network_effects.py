@@ -37,12 +37,13 @@ measured angles, smoothed rates, voltages; :func:`heli_uq.output.network.network
 
 Naming is not a model comparison: a draw's regression can keep an effect that a fit to the
 record does not need (a spring beside a hidden friction, on a 24 s record).
-:func:`check_candidates` lists the named effects and their ties (where nothing is named, the
-credible effects that explain too little) as the candidates of a held-out check,
-:func:`heli_uq.discovery.discover` restricted to them (``candidates``, ``max_effects`` = their
-number): it fits them alone and in pairs on part of the training window, keeps only what
-beats the smaller model on held-out blocks of the rest, and refits that with NUTS
-(:func:`check_line`: the command ``heli-uq sample`` prints).
+:func:`~heli_uq.discovery.network_check.check_candidates` lists the named effects and their
+ties (where nothing is named, the credible effects that explain too little) as the
+candidates of a held-out check, :func:`heli_uq.discovery.discover` restricted to them
+(``candidates``, ``max_effects`` = their number): it fits them alone and in pairs on part
+of the training window, keeps only what beats the smaller model on held-out blocks of the
+rest, and refits that with NUTS (:func:`~heli_uq.discovery.network_check.check_line`: the
+command ``heli-uq sample`` prints).
 
 The implied magnitudes are local: a column is a derivative at the probe values, so a dead
 band's or a spring's rest angle is not estimated here, only named; the refit estimates it.
@@ -53,7 +54,6 @@ Layer 8 (discovery).
 from __future__ import annotations
 
 import json
-import shlex
 import warnings
 
 import jax
@@ -62,15 +62,13 @@ import numpy as np
 
 from heli_uq.discovery.network_equation import INCLUDE, bic_path_fit
 from heli_uq.errors import ParameterError
-from heli_uq.model import build_model
 from heli_uq.model.spec import with_effects
 from heli_uq.model.terms import EFFECTS, NeuralTorque
 from heli_uq.model.terms.base import AbstractInputMap, residual_projector
 from heli_uq.probability.priors import fixed_values
 
 __all__ = ["name_network_effects", "effect_columns", "network_effects_of", "input_dependence",
-           "state_networks", "effects_sentence", "check_candidates", "check_line",
-           "EXPLAINED_MIN"]  # fmt: skip
+           "state_networks", "effects_sentence", "EXPLAINED_MIN"]  # fmt: skip
 
 #: Grid inputs of a network of the states (coords of ``nn_point_<axis>``).
 STATE_INPUTS = ("theta", "psi", "omega_theta", "omega_psi", "u_theta", "u_psi")
@@ -330,70 +328,3 @@ def effects_sentence(axis: str, found: dict) -> str:
     weak = (f"; credible but too small a part of it to name: {', '.join(found['credible'])} (together "
             f"{found['r2']:.0%})") if found.get("credible") else ""  # fmt: skip
     return f"the network of the states on {axis} is no effect of the table{best}{weak}{depends}"
-
-
-def check_candidates(found: dict) -> list[str]:
-    """The effects ``"axis:kind"`` named on each axis, each followed by the effects tied to
-    it (``found``: ``{axis: network_effects_of(...)}``): the candidates of the held-out
-    check by :func:`heli_uq.discovery.discover` (module docstring).  On an axis where
-    nothing is named, its credible effects that explain too little to be named
-    (``unexplained``) are the candidates: the check, not :data:`EXPLAINED_MIN`, then judges
-    them.  Empty if no effect is credible."""
-    out = []
-    for axis, named in found.items():
-        for kind in named["selected"] or named.get("credible", []):
-            for k in (kind, *named.get("ties", {}).get(kind, ())):
-                if f"{axis}:{k}" not in out:
-                    out.append(f"{axis}:{k}")
-    return out
-
-
-def check_line(data: str, found: dict, window, out, *, model=None, prior_options=()) -> str | None:
-    """The line ``heli-uq sample`` prints after naming: the ``heli-uq discover`` command of
-    the held-out check of the effects named in ``found`` (``{axis: network_effects_of(...)}``)
-    on the training ``window`` ``(a, b)`` [s] of the record ``data``, writing to ``out``; or,
-    for a window shorter than discovery's :data:`~heli_uq.discovery.workflow.MIN_SECONDS`,
-    why there is none.  ``None`` if :func:`check_candidates` finds no candidate.
-
-    ``model``: the sampled model, whose named effects are the check's ``--base-effects``
-    (an effect whose options ``--base-effects`` cannot carry is named in the line);
-    ``prior_options``: the run's prior options as words (``["--fix", "a_yaw=1"]``).
-    """
-    from heli_uq.discovery.workflow import MIN_SECONDS
-
-    candidates = check_candidates(found)
-    if not candidates:
-        return None
-    a, b = window
-    if b - a < MIN_SECONDS:
-        return (f"a check of them on held-out blocks (heli-uq discover) needs a training window of at "
-                f"least {MIN_SECONDS:g} s; this one is {b - a:g} s")  # fmt: skip
-    base, lost = _base_effects(model)
-    words = ([f"--base-effects {','.join(base)}"] if base else []) + [shlex.quote(w) for w in prior_options]
-    line = (f"check them on held-out blocks: heli-uq discover {data} --window {a:g}:{b:g} "
-            + "".join(f"{w} " for w in words)
-            + f"--candidates {','.join(candidates)} --max-effects {len(candidates)} --out {out}")  # fmt: skip
-    if lost:
-        line += (" (its base model takes each effect's default options; this run's differ for "
-                 f"{', '.join(lost)})")
-    return line
-
-
-#: Terms that are not named effects of a base model (a network or a fitted function).
-_NOT_BASE = ("neural_torque", "gp_torque", "feature_torque")
-
-
-def _base_effects(model) -> tuple[list[str], list[str]]:
-    """``(["axis:kind", ...], [those whose options are not the defaults])`` of ``model``'s
-    named effects (``([], [])`` without a model)."""
-    if model is None:
-        return [], []
-    base, lost = [], []
-    for spec in model.describe()["effects"]:
-        if spec["effect"] in _NOT_BASE:
-            continue
-        name = f"{spec['axis']}:{spec['effect']}"
-        base.append(name)
-        if build_model([name]).describe()["effects"][0] != spec:
-            lost.append(name)
-    return base, lost

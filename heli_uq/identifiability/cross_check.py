@@ -22,6 +22,7 @@ CONTRACTION_HIGH = 0.5
 #: A null direction's loading above this counts the coordinate as taking part in it.
 LOADING_PART = 0.1
 
+
 def cross_check(names, structural, profiles, per_contraction, null_contraction) -> list[dict]:
     """Compare the three views; one entry per check with ``agree`` and a reason.
 

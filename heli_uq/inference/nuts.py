@@ -11,13 +11,12 @@ interrupted run with the same seed stream (same seed, same draws).
 
 The chains advance in short compiled *blocks* of NUTS iterations (numpyro's kernel, all
 chains at once: one device per chain when there are enough, else vectorised;
-:mod:`heli_uq.inference.nuts_blocks`), each cut
-to about :data:`BLOCK_SECONDS` of work.  Between blocks the sampler reports progress
-(warm-up or sampling, iterations, divergences per chain) and honours an interrupt: the
-first SIGINT saves the draws finished so far (or the warm-up state) and raises
-:class:`~heli_uq.inference.interrupt.Interrupted`; ``resume=True`` then continues to the
-same draws, bit for bit, as an uninterrupted run (every iteration runs the same compiled
-step, whatever the block lengths).
+:mod:`heli_uq.inference.nuts_blocks`), each cut to about :data:`BLOCK_SECONDS` of work.
+Between blocks the sampler reports progress (warm-up or sampling, iterations, divergences
+per chain) and honours an interrupt: the first SIGINT saves the draws finished so far (or
+the warm-up state) and raises :class:`~heli_uq.inference.interrupt.Interrupted`;
+``resume=True`` then continues to the same draws, bit for bit, as an uninterrupted run
+(every iteration runs the same compiled step, whatever the block lengths).
 """
 
 from __future__ import annotations

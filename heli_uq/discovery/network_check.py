@@ -22,12 +22,12 @@ __all__ = ["check_candidates", "check_line"]
 def check_candidates(found: dict) -> list[str]:
     """The effects ``"axis:kind"`` named on each axis, each followed by the effects tied to
     it (``found``: ``{axis: network_effects_of(...)}``,
-    :func:`~heli_uq.discovery.network_effects.network_effects_of`): the candidates of the held-out
-    check by :func:`heli_uq.discovery.discover` (module docstring).  On an axis where
-    nothing is named, its credible effects that explain too little to be named
+    :func:`~heli_uq.discovery.network_effects.network_effects_of`): the candidates of the
+    held-out check by :func:`heli_uq.discovery.discover` (module docstring).  On an axis
+    where nothing is named, its credible effects that explain too little to be named
     (``unexplained``) are the candidates: the check, not
-    :data:`~heli_uq.discovery.network_effects.EXPLAINED_MIN`, then judges
-    them.  Empty if no effect is credible."""
+    :data:`~heli_uq.discovery.network_effects.EXPLAINED_MIN`, then judges them.  Empty if
+    no effect is credible."""
     out = []
     for axis, named in found.items():
         for kind in named["selected"] or named.get("credible", []):

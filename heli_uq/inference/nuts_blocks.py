@@ -63,7 +63,7 @@ def save_chunk(checkpoint: Checkpoint, index: int, pending: list, state, smap: S
 
 
 def progress_text(it: int, warmup: int, draws: int, chains: int, pending: list, records: list,
-                   seconds: float) -> str:  # fmt: skip
+                  seconds: float) -> str:  # fmt: skip
     """``"NUTS sampling (4 chains): 120/500 draws, 35 s; divergences per chain 0 0 1 0"``."""
     if it <= warmup and not records and not pending:
         return f"NUTS warm-up ({chains} chains): {it}/{warmup} iterations, {seconds:.0f} s"

@@ -50,3 +50,36 @@ def test_the_noise_scale_of_white_noise_is_its_sd_and_a_smooth_misfit_barely_ent
     drift = 0.05 * np.sin(2 * np.pi * 0.01 * np.arange(n) / 5.0)[:, None]
     np.testing.assert_allclose(noise_scale(white), [0.003, 0.008], rtol=NOISE_RTOL)
     np.testing.assert_allclose(noise_scale(white + drift), [0.003, 0.008], rtol=NOISE_RTOL)
+
+
+def test_the_residuals_figure_shows_the_misses_apart_from_the_residual_lines(tmp_path, monkeypatch):
+    """The samples outside the 90 % band are drawn as dots of their own colour, darker
+    than their axis' residual line and named in the legend, one dot per miss: drawn in
+    the line's own colour they vanish into it."""
+    import matplotlib.colors as mcolors
+
+    import heli_uq.discovery.locate as loc
+
+    figures = []
+    monkeypatch.setattr(loc, "save_figure", lambda fig, path: figures.append(fig))
+    rng = np.random.default_rng(3)
+    n = 4000
+    t = 0.01 * np.arange(n)
+    resid = np.column_stack([0.003 * rng.standard_normal(n),
+                             0.008 * rng.standard_normal(n) + 0.05 * np.sin(2 * np.pi * t / 9.0)])
+    where = locate(_fitted(resid, np.array([0.003, 0.008])), out_dir=tmp_path)
+    (fig,) = figures
+    top = fig.axes[0]
+    lines = {ln.get_label(): ln for ln in top.get_lines()}
+    for j, name in enumerate(("pitch", "yaw")):
+        dots, line = lines[f"{name} outside the 90 % band"], lines[f"{name} residual"]
+        assert dots.get_linestyle() == "None" and dots.get_marker() == "."
+        assert mcolors.to_rgb(dots.get_color()) == mcolors.to_rgb(loc.OUTSIDE_COLORS[j])
+        assert mcolors.to_rgb(dots.get_color()) != mcolors.to_rgb(line.get_color())
+        assert sum(mcolors.to_rgb(dots.get_color())) < sum(mcolors.to_rgb(line.get_color()))  # darker
+    yaw_misses = len(lines["yaw outside the 90 % band"].get_xdata())
+    assert where["axis"] == "yaw" and yaw_misses > 0.1 * n
+    (segment,) = where["segments"]  # constant voltages: one input segment, the whole record
+    assert yaw_misses == round(segment["outside90_psi"] * n)
+    legend = {text.get_text() for text in top.get_legend().get_texts()}
+    assert {"pitch outside the 90 % band", "yaw outside the 90 % band"} <= legend

@@ -39,6 +39,9 @@ STILL_RATE = 0.02
 N_BINS = 6
 _SMOOTH_S = 0.5
 _AXES = ("theta", "psi")
+#: Colours of the samples outside the 90 % band, pitch and yaw: darker than the residual
+#: lines (``C0``, ``C1``) so that the misses show on top of them.
+OUTSIDE_COLORS = ("navy", "saddlebrown")
 
 
 def _features(y, u, dt) -> dict:
@@ -127,14 +130,15 @@ def _figure(t, resid, outside, segments, by_feature, axis, windows):
     ax_t = fig.add_subplot(grid[0, :])
     c, d = windows["test"]
     order = (1, 0) if axis == "pitch" else (0, 1)  # the worst axis drawn last, on top
-    for j, name, color in ((j, ("pitch residual", "yaw residual")[j], f"C{j}") for j in order):
-        ax_t.plot(t, np.degrees(resid[:, j]), color=color, lw=0.7, label=name)
-        ax_t.plot(t[outside[:, j]], np.degrees(resid[outside[:, j], j]), ".", ms=1.5, color=color,
-                  alpha=0.6)  # fmt: skip
+    for j in order:
+        name = ("pitch", "yaw")[j]
+        ax_t.plot(t, np.degrees(resid[:, j]), color=f"C{j}", lw=0.7, alpha=0.5, label=f"{name} residual")
+        ax_t.plot(t[outside[:, j]], np.degrees(resid[outside[:, j], j]), ".", ms=2.5,
+                  color=OUTSIDE_COLORS[j], label=f"{name} outside the 90 % band")  # fmt: skip
     ax_t.axvspan(t[c], t[d - 1], color="0.85", zorder=0, label="held out")
     ax_t.set_ylabel("measured - mean simulation [deg]")
     ax_t.set_xlabel("time $t$ [s]")
-    ax_t.set_title("Residuals of the base model (dots: outside the 90 % band)", loc="left")
+    ax_t.set_title("Residuals of the base model (dark dots: outside the 90 % band)", loc="left")
     ax_t.legend(loc="upper left", fontsize="small")
     ax_s = fig.add_subplot(grid[1, :])
     mids = [0.5 * (s["t0"] + s["t1"]) for s in segments]

@@ -333,7 +333,7 @@ def test_bands_figure_says_unconverged_and_keeps_the_data_readable():
     drift[:, 50:, 1] -= 0.5 * (obs[:, 1].max() - obs[:, 1].min())  # yaw drifts off: keep it shown
     healthy = plot_bands(t, drift, obs, train_mask=train,
                          coverage={"train": {"theta": 0.9, "psi": 0.9}}, title="T")  # fmt: skip
-    assert "covers train: 90 %" in healthy.axes[0].get_title(loc="left")
+    assert "the 90 % band covers 90 % of the train window" in healthy.axes[0].get_title(loc="left")
     assert healthy.axes[1].get_ylim()[0] <= np.degrees(drift[..., 1].min())
     assert not healthy.axes[1].texts  # no clipping note
     # a band as narrow as the noise must not hide under the data's line: bands drawn over it

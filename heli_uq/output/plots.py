@@ -243,10 +243,10 @@ def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
             ax.set_title(f"{name} ${sym}$ - {health}: no coverage claimed (see summary.json "
                          "'health')", loc="left", fontsize="medium", color="firebrick")  # fmt: skip
         elif coverage:
-            text = ", ".join(f"{w}: {100 * c[('theta', 'psi')[j]]:.0f} %"
+            text = ", ".join(f"{100 * c[('theta', 'psi')[j]]:.0f} % of the "
+                             + ("window" if w == "window" else f"{w} window")
                              for w, c in coverage.items())  # fmt: skip
-            ax.set_title(f"{name} ${sym}$ - 90 % band covers {text} of the data",
-                         loc="left", fontsize="medium")  # fmt: skip
+            ax.set_title(f"{name} ${sym}$ - the 90 % band covers {text}", loc="left", fontsize="medium")
         _keep_data_readable(ax, obs[:, j], q[:, :, j])
         ax.set_ylabel(f"${sym}$ [deg]")
         _legend(ax)

@@ -26,10 +26,12 @@ nesting one stiff base model gave the same 500-character warning eleven times). 
 process (``"serial"``) they are logged as they happen.
 
 A task whose worker process dies (Dask gives up on it after its retries) becomes a
-:class:`TaskFailed` like a task that raised; the others go on.  The workers of a
-``LocalCluster`` that :func:`run_tasks` starts drop the one record Dask logs with a
-traceback when a heartbeat races the cluster's close (:data:`HEARTBEAT_RACE`): there the
-scheduler goes away only because :func:`run_tasks` closes it.
+:class:`TaskFailed` like a task that raised; the others go on.  Closing a ``LocalCluster``
+that :func:`run_tasks` started makes Dask log two messages that say nothing about the
+run, and both are dropped.  The workers drop the record with a traceback that Dask logs
+when a heartbeat races the close (:data:`HEARTBEAT_RACE`): the scheduler goes away only
+because :func:`run_tasks` closes it.  This process drops the nanny's warning that a worker
+process still alive after 4 s is killed (:data:`NANNY_KILL`): by then its tasks are done.
 
 Layer 0: imports only :mod:`heli_uq.errors` (layer 0) and, when called, JAX and Dask.
 """
@@ -64,25 +66,49 @@ CONNECT_TIMEOUT = "10s"
 #: Start of the message (logger ``distributed.worker``, with a traceback) of a worker
 #: whose heartbeat meets a scheduler that is closing.
 HEARTBEAT_RACE = "Failed to communicate with scheduler during heartbeat"
+#: Start of the warning (logger ``distributed.nanny``) when a worker process is still alive
+#: 4 s after its nanny asked it to stop, and is killed.  JAX workers on a loaded machine
+#: take that long to exit: seen on a 2-core machine while a second run shared the cores.
+NANNY_KILL = "Worker process still alive after"
 #: The logger whose warnings a worker's task sends back (the package's, :mod:`heli_uq.log`).
 PACKAGE_LOGGER = "heli_uq"
 #: Characters of a repeated warning quoted in the line that names the other tasks.
 WARNING_HEAD = 60
 
 
-class ClosingRaceFilter(logging.Filter):
-    """Drops the :data:`HEARTBEAT_RACE` record (installed in the workers of a cluster that
-    :func:`run_tasks` owns, whose scheduler closes only at the end of the run)."""
+class ClosingFilter(logging.Filter):
+    """Drops the records whose message starts with ``prefix``: a message Dask logs only
+    because :func:`run_tasks` closes a cluster it owns (:data:`HEARTBEAT_RACE`,
+    :data:`NANNY_KILL`)."""
+
+    def __init__(self, prefix: str):
+        super().__init__()
+        self.prefix = prefix
 
     def filter(self, record: logging.LogRecord) -> bool:
-        return not record.getMessage().startswith(HEARTBEAT_RACE)
+        return not record.getMessage().startswith(self.prefix)
 
 
 def _quiet_closing_race() -> None:
-    """Install :class:`ClosingRaceFilter` once on this process's ``distributed.worker`` logger."""
+    """Install a :class:`ClosingFilter` of :data:`HEARTBEAT_RACE` once on this process's
+    ``distributed.worker`` logger (run in the workers)."""
     logger = logging.getLogger("distributed.worker")
-    if not any(isinstance(f, ClosingRaceFilter) for f in logger.filters):
-        logger.addFilter(ClosingRaceFilter())
+    if not any(isinstance(f, ClosingFilter) and f.prefix == HEARTBEAT_RACE for f in logger.filters):
+        logger.addFilter(ClosingFilter(HEARTBEAT_RACE))
+
+
+def _close_quietly(cluster) -> None:
+    """Close a cluster :func:`run_tasks` started, without the :data:`NANNY_KILL` warning of a
+    worker process that takes longer to exit than Dask waits (its tasks are done or given
+    up by then; the filter is on this process's ``distributed.nanny`` logger while it
+    closes, and removed after)."""
+    logger = logging.getLogger("distributed.nanny")
+    quiet = ClosingFilter(NANNY_KILL)
+    logger.addFilter(quiet)
+    try:
+        cluster.close()
+    finally:
+        logger.removeFilter(quiet)
 
 
 class TaskFailed(dict):
@@ -297,5 +323,5 @@ def run_tasks(fn: Callable, tasks: Mapping, *, scheduler: str | None = "local", 
             warned.close()
             client.close()
             if cluster is not None:
-                cluster.close()
+                _close_quietly(cluster)
     return {k: results[k] for k in keys}

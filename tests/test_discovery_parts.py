@@ -480,22 +480,49 @@ def test_a_script_without_a_main_guard_gets_a_clear_error_from_the_local_cluster
     assert 'if __name__ == "__main__":' in last and 'scheduler="serial"' in last, last
 
 
+#: Seconds a worker process of the closing test lingers at exit: longer than the 4 s its
+#: nanny waits before it kills the process with a warning.
+SLOW_EXIT_S = 6.0
+
+
 def _closing_race_filtered(_):
+    import atexit
     import logging
+    import time
 
     from heli_uq.executor import HEARTBEAT_RACE
 
+    atexit.register(time.sleep, SLOW_EXIT_S)  # this worker process exits slowly
     logger = logging.getLogger("distributed.worker")
     race = logger.makeRecord(logger.name, logging.ERROR, __file__, 0, HEARTBEAT_RACE + ".", (), None)
     other = logger.makeRecord(logger.name, logging.ERROR, __file__, 0, "Worker stream died", (), None)
     return (not logger.filter(race), bool(logger.filter(other)))
 
 
-def test_the_workers_of_a_local_cluster_drop_only_the_heartbeat_race_at_close():
+def test_a_local_cluster_closes_without_the_messages_its_closing_causes():
     """A worker whose heartbeat meets the closing scheduler logs a traceback at ERROR;
-    run_tasks' own workers drop that record and keep every other one."""
-    out = run_tasks(_closing_race_filtered, {"a": 0, "b": 0}, scheduler="local", workers=2)
+    run_tasks' own workers drop that record and keep every other one.  A worker process
+    that takes longer to exit than its nanny waits is killed with a warning in this
+    process; run_tasks drops that warning while it closes its cluster, and only then."""
+    import logging
+
+    from heli_uq.executor import NANNY_KILL
+
+    seen = []
+    nanny = logging.getLogger("distributed.nanny")
+    handler = logging.Handler(logging.WARNING)
+    handler.emit = lambda record: seen.append(record.getMessage())
+    nanny.addHandler(handler)
+    try:
+        out = run_tasks(_closing_race_filtered, {"a": 0, "b": 0}, scheduler="local", workers=2)
+        assert not nanny.filters  # the filter is gone with the cluster
+        kill = nanny.makeRecord(nanny.name, logging.WARNING, __file__, 0, f"{NANNY_KILL} 4.0 seconds",
+                                (), None)  # fmt: skip
+        nanny.handle(kill)
+    finally:
+        nanny.removeHandler(handler)
     assert out == {"a": (True, True), "b": (True, True)}, out
+    assert seen == [kill.getMessage()], seen  # none during the close; outside it, logged
 
 
 def test_an_unreachable_scheduler_is_one_clear_error_not_a_hang(monkeypatch):

@@ -20,6 +20,10 @@ jax.config.update("jax_compilation_cache_dir",
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
+# A test that meets a bug sees its traceback, not the CLI's one-line internal error
+# (inherited by the CLI's subprocesses too).
+os.environ.setdefault("HELI_UQ_TRACEBACK", "1")
+
 REPO = pathlib.Path(__file__).resolve().parents[1]
 _SHARED_DATA = REPO.parent / "shared" / "data"
 if "HELI_UQ_DATA" not in os.environ and _SHARED_DATA.is_dir():

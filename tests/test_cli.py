@@ -172,8 +172,9 @@ def test_params_json_changes_trajectory(tmp_path, capsys, table3_run):
         ('{"m": -0.5}', ["'m'", "must be > 0"]),
         ('{"m": 0.5,', ["invalid JSON", "line 1"]),
         ("[0.5]", ["JSON object"]),
+        ('{"m": [1]}', ["parameter 'm'", "expected a number, found [1]"]),
     ],
-    ids=["unknown-name", "non-number", "negative-mass", "invalid-json", "not-object"],
+    ids=["unknown-name", "non-number", "negative-mass", "invalid-json", "not-object", "a-list"],
 )
 def test_bad_params_json(tmp_path, capsys, content, needles):
     params = tmp_path / "bad.json"
@@ -232,12 +233,80 @@ def test_out_is_a_file(tmp_path, capsys):
     assert_one_line_error(err, str(blocker))
 
 
-def test_usage_errors_exit_2(capsys):
-    for argv in ([], ["simulate", "--inputs", "table3"], ["frobnicate"], ["data"]):
+def test_usage_errors_exit_2_in_one_line(capsys):
+    for argv in ([], ["simulate", "--inputs", "table3"], ["frobnicate"], ["data"],
+                 ["sample", "--seed", "1.5", "--out", "o"]):  # fmt: skip
         with pytest.raises(SystemExit) as info:
             main(argv)
         assert info.value.code == 2
-    assert "usage:" in capsys.readouterr().err
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and err.startswith("heli-uq") and "--help')" in err, err
+
+
+@pytest.mark.parametrize("seed", ["-1", str(2**32), "99999999999999999999999"])
+def test_a_seed_numpy_cannot_take_is_refused_in_one_line(tmp_path, capsys, seed):
+    with pytest.raises(SystemExit) as info:
+        main(["sample", "--seed", seed, "--out", str(tmp_path / "o")])
+    assert info.value.code == 2
+    assert_one_line_error(capsys.readouterr().err, "--seed", "0..4294967295", seed)
+    assert not (tmp_path / "o").exists()
+
+
+def test_an_exception_no_check_caught_is_one_line_with_status_70(tmp_path, capsys, monkeypatch):
+    """A bug reaches the user as one line naming the exception and where it rose (exit 70),
+    and as the traceback with HELI_UQ_TRACEBACK set (as the tests set it)."""
+    from heli_uq.cli import simulate as simulate_cli
+    from heli_uq.cli.main import EXIT_INTERNAL, TRACEBACK_ENV
+
+    def boom(args):
+        raise TypeError("unhashable type: 'list'")
+
+    monkeypatch.setattr(simulate_cli, "cmd_simulate", boom)
+    argv = ["simulate", "--inputs", "table3", "--out", str(tmp_path / "o")]
+    with pytest.raises(TypeError):
+        main(argv)
+    monkeypatch.delenv(TRACEBACK_ENV)
+    assert main(argv) == EXIT_INTERNAL
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert err.startswith("heli-uq: internal error")
+    # where: the innermost frame in the package (not in numpy's or JAX's internals)
+    assert re.search(r"TypeError: unhashable type: 'list' at main\.py:\d+; set HELI_UQ_TRACEBACK=1", err), err
+
+
+@pytest.mark.parametrize(("argv", "needles"), [
+    (["simulate", "--inputs", "table3", "--out", ""], ["--out", "expected a directory"]),
+    (["sample", "--sampler", "laplace", "--target-accept", "0.9"], ["--target-accept", "NUTS only"]),
+    (["sample", "--target-accept", "1.5"], ["--target-accept", "(0, 1)", "1.5"]),
+    (["sample", "--effects", "yaw:deadband,,"], ["--effects", "an empty item"]),
+    (["run", "--resume"], ["--resume: nothing to resume", "posterior"]),
+])  # fmt: skip
+def test_options_checked_before_any_work(tmp_path, capsys, small_record, argv, needles):
+    data = ["--data", str(small_record)] if argv[0] in ("sample", "run") else []
+    out = [] if "--out" in argv else ["--out", str(tmp_path / "o")]
+    code, stdout, err = run(capsys, *argv, *data, *out)
+    assert code == 2 and stdout == ""
+    assert_one_line_error(err, *needles)
+
+
+@pytest.mark.parametrize(("model", "needles"), [
+    ({"effects": [], "mechanics": ["closed_form"]}, ["unknown mechanics ['closed_form']"]),
+    ({"effects": [{"effect": ["deadband"], "axis": "yaw"}]}, ["unknown effect ['deadband']"]),
+    ({"effects": [], "linear_torque": "false"}, ["'linear_torque' must be true or false", "'false'"]),
+    ({"effects": [{"effect": "coulomb_friction", "axis": "yaw", "omega_s": "fast"}]},
+     ["option 'omega_s': expected a number, found 'fast'"]),
+    ({"effects": [{"effect": "coulomb_friction", "axis": "yaw", "kind": "x"}]},
+     ["unknown option(s) kind", "expected omega_s"]),
+    ({"effects": [{"effect": "neural_torque", "axis": "yaw", "inputs": ["u"]}]},
+     ["option 'inputs': expected a string"]),
+])  # fmt: skip
+def test_a_model_file_of_wrong_types_is_one_line(tmp_path, capsys, model, needles):
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(model))
+    code, _, err = run(capsys, "simulate", "--inputs", "table3", "--t-end", "0.5", "--model-file", str(path),
+                       "--out", str(tmp_path / "o"))  # fmt: skip
+    assert code == 2
+    assert_one_line_error(err, "m.json", *needles)
 
 
 # --------------------------------------------------------------------------- simulate record

@@ -67,6 +67,7 @@ def test_random_and_mutated_staircases_stay_within_bounds(bounds):
     (dict(duration=60.0, ranges=((1.4, 1.3), (0.45, 1.6))), "u_theta range"),
     (dict(duration=60.0, ranges=((1.2, 1.4), (0.5, 0.5))), "u_psi range"),
     (dict(duration=60.0, hold=(5.0, 3.0)), "segment lengths"),
+    (dict(duration=1e9), "1e\\+11 samples, more than a design's 1,000,000"),
 ])  # fmt: skip
 def test_bounds_that_cannot_be_met_are_refused(kwargs, needle):
     with pytest.raises(ParameterError, match=needle):
@@ -155,6 +156,16 @@ def test_discrimination_is_zero_between_identical_models_and_grows_with_their_di
     assert small.value(u) > 1.0
 
 
+@pytest.mark.parametrize("candidates", [["a", "b"], [{"score": 1}, {"score": 2}],
+                                        [{"model": "yaw:deadband", "score": "high"}]])  # fmt: skip
+def test_a_malformed_discovery_result_is_named_in_one_line(tmp_path, candidates):
+    from heli_uq.errors import DataFormatError
+
+    (tmp_path / "discovery.json").write_text(json.dumps({"candidates": candidates}))
+    with pytest.raises(DataFormatError, match=r"discovery.json: 'candidates' must be a list of objects"):
+        Rivals.from_discovery(tmp_path, sigma=(0.003, 0.008), x0=(-0.6, 0.0, 0.0, 0.0))
+
+
 @pytest.mark.slow
 def test_a_saved_posterior_becomes_the_design_prior_with_its_fixed_values(tmp_path):
     """The design prior from a ``posterior.nc``: its free parameters and their draws, and
@@ -189,7 +200,10 @@ def test_cli_design_rejects_bad_input_in_one_line(tmp_path, capsys):
              (["--discovery", str(tmp_path / "nowhere")], "discovery.json: not a discovery result"),
              # a term not set up from a record: the design used to leave it out without a word
              (["--effects", "yaw:gp_torque"], "gp_torque(yaw) is set up from a record"),
-             (["--model", "hybrid", "--nn-inputs", "u"], "neural_torque(yaw) is set up from a record")]
+             (["--model", "hybrid", "--nn-inputs", "u"], "neural_torque(yaw) is set up from a record"),
+             # the models come from the posterior: a model option beside it was ignored
+             (["--posterior", "p.nc", "--effects", "yaw:deadband"],
+              "--effects with --posterior: the models come from --posterior")]
     for extra, needle in cases:
         code = main(["design", *extra, "--out", str(tmp_path / "o")])
         err = capsys.readouterr().err

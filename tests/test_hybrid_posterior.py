@@ -215,6 +215,7 @@ def test_convergence_is_judged_on_the_torque_not_the_weights(torque_shift):
 
 @pytest.mark.parametrize("argv, needles", [
     (["--model", "hybrid", "--hidden", "0"], ["--hidden", "positive"]),
+    (["--model", "hybrid", "--hidden", "100000"], ["hidden", "1..1024", "100000"]),
     (["--hidden", "4"], ["--hidden", "--model hybrid"]),
     (["--model", "hybrid", "--nn-axes", "roll"], ["--nn-axes", "roll"]),
 ])  # fmt: skip

@@ -267,7 +267,35 @@ def test_cli_identifiability_reads_a_gp_posterior_on_the_model_it_was_fitted_wit
         capsys.readouterr().err  # fmt: skip
     r = json.loads((out / "identifiability.json").read_text())
     assert {n for n in r["parameters"] if n.startswith("gp_")} == {"gp_tau_yaw", "gp_f_0_yaw", "gp_z_1_yaw"}
-    assert r["bayesian"]["source"] == "MCMC draws of the given posterior"
+    # 2 x 10 draws: the report says the posterior failed its health checks (ESS)
+    assert r["bayesian"]["source"].startswith("MCMC draws of the given posterior (UNCONVERGED: ")
+    assert "bulk ESS" in r["bayesian"]["source"] and "WARNING: UNCONVERGED" in capsys.readouterr().err
+
+
+def test_cli_identifiability_refuses_a_posterior_of_other_data_in_one_line(tmp_path, capsys):
+    """A posterior names the data it was sampled on (its training window and their sha256):
+    a report on another record, or on a window without that span, is refused in one line;
+    on the same record, with a window that holds the span, the check passes."""
+    from heli_uq.identifiability.report import check_posterior_data
+    from heli_uq.probability import make_problem
+    from heli_uq.probability.problem import training_data
+
+    sampled = synthetic_experiment(duration=2.0, seed=3)
+    other = synthetic_experiment(duration=2.0, seed=4)
+    idata = az.from_dict(posterior={"m": np.ones((1, 4))})
+    idata.posterior.attrs.update({"model": json.dumps(PAPER.describe()), "source": "a.csv",
+                                  **training_data(make_problem(sampled, (0.0, 1.0), error="iid"))})
+    idata.to_netcdf(tmp_path / "posterior.nc")
+    check_posterior_data(idata.posterior, sampled)  # passes: no error
+    check_posterior_data(idata.posterior, sampled.window(0.0, 1.5))
+    for rec, window, why in ((other, [], "this record's samples there differ"),
+                             (sampled, ["--window", "0.5:2"], "this record does not hold that window")):
+        csv = rec.to_csv(tmp_path / "rec.csv")
+        code = main(["identifiability", "--data", str(csv), *window, "--posterior",
+                     str(tmp_path / "posterior.nc"), "--out", str(tmp_path / "o")])  # fmt: skip
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and len(err.splitlines()) == 1, err
+        assert "sampled on 0-1 s of a.csv" in err and why in err, err
 
 
 #: Relative tolerance of a sample variance from PRECISION_DRAWS draws (its sd is sqrt(2/n) = 0.6 %).
@@ -302,3 +330,25 @@ def test_laplace_draws_of_an_ill_conditioned_precision_have_its_inverse_as_covar
     precision = a @ a.T + 0.5 * np.eye(4)
     cov = np.cov(precision_draws(np.zeros(4), precision, PRECISION_DRAWS, seed=2), rowvar=False)
     np.testing.assert_allclose(cov @ precision, np.eye(4), atol=0.05)
+
+
+def test_a_posterior_wider_than_its_prior_fails_the_cross_check():
+    """Conditioning on data narrows a Gaussian prior in every direction: a contraction
+    below CONTRACTION_WIDER (the helper's unconverged posterior of another record gave
+    -6.19 along the common scaling) disagrees, on a null direction and on a coordinate,
+    while Monte Carlo noise just below zero does not."""
+    from types import SimpleNamespace
+
+    from heli_uq.identifiability.cross_check import CONTRACTION_WIDER, cross_check
+
+    structural = {"null_directions": [{"key": "common_scaling", "loadings": {"a": 0.7, "b": 0.7}}]}
+    profiles = [SimpleNamespace(name=n, flat=True, classification="structurally_non_identifiable",
+                                lower=None, upper=None) for n in ("a", "b")]  # fmt: skip
+
+    def agree(c):
+        rows = cross_check(["a", "b"], structural, profiles, np.array([c, 0.0]), np.array([c]))
+        return [r["agree"] for r in rows], rows[0]["detail"]
+
+    assert agree(-0.05)[0] == [True, True, True]
+    flags, detail = agree(CONTRACTION_WIDER - 0.01)
+    assert flags == [False, False, True] and "wider than the prior" in detail

@@ -82,6 +82,32 @@ def test_resume_refuses_each_mismatch_in_one_line(record, tmp_path):
         checkpoint.resume_info(dict(base, seed=2, chains=4))
 
 
+@pytest.mark.parametrize("damage", ["manifest not JSON", "manifest a list", "start cut short",
+                                    "chunk cut short"])  # fmt: skip
+def test_a_damaged_checkpoint_file_is_named_in_one_line(record, tmp_path, damage):
+    """A checkpoint file that does not read (cut short by a full disk, overwritten) is a
+    ParameterError naming the file, not json's or pickle's exception; ``resume="auto"``
+    (``obstacle``) sees a damaged manifest as a reason to sample afresh."""
+    from heli_uq.inference.manifest import MANIFEST_FILE
+
+    base, _ = _variants(record)
+    checkpoint = Checkpoint(tmp_path / "chunks")
+    checkpoint.start_new({"map_value": 1.0}, base)
+    checkpoint.save("nuts", 0, {"x": np.zeros(3)})
+    path, text = {"manifest not JSON": (MANIFEST_FILE, b'{"broken'),
+                  "manifest a list": (MANIFEST_FILE, b"[1, 2]"),
+                  "start cut short": ("start.pkl", b"\x80\x04"),
+                  "chunk cut short": ("nuts_chunk_00000.pkl", b"\x80\x04\x95")}[damage]  # fmt: skip
+    (tmp_path / "chunks" / path).write_bytes(text)
+    pattern = rf"^resume: .*{re.escape(path)} is damaged \(.*\); start the run again without resuming"
+    with pytest.raises(ParameterError, match=pattern) as err:
+        checkpoint.resume_info(base)
+        checkpoint.load("nuts")
+    assert "\n" not in str(err.value)
+    if path == MANIFEST_FILE:
+        assert checkpoint.obstacle(base) == "a damaged manifest"
+
+
 def test_resume_refuses_other_library_versions(record, tmp_path, monkeypatch):
     problem = make_problem(record, (0.0, 2.0), (2.0, 3.0), error="iid")
     checkpoint = Checkpoint(tmp_path / "chunks")
@@ -208,6 +234,48 @@ def test_a_map_short_of_the_optimum_fails_a_laplace_run():
     health = check_health({**HEALTHY, **SHORT_MAP, "sampler": "laplace"})
     assert health["flags"] == ["UNCONVERGED"] and health["notes"] == []
     assert "MAP did not converge" in health["warnings"][0]
+
+
+def _nuts_idata(posterior: dict):
+    """An InferenceData with NUTS's sample stats (no divergences) for ``posterior``."""
+    import arviz as az
+
+    shape = next(iter(posterior.values())).shape
+    stats = {"diverging": np.zeros(shape, bool), "tree_depth": np.ones(shape),
+             "n_steps": np.ones(shape), "energy": np.random.default_rng(9).normal(size=shape)}  # fmt: skip
+    return az.from_dict(posterior=posterior, sample_stats=stats)
+
+
+def test_draws_too_few_to_measure_rhat_and_ess_fail_the_run():
+    """Two draws per chain: arviz gives R-hat and ESS as NaN.  That is not convergence
+    shown: the run is UNCONVERGED and says why, and its low coverage is not called model
+    error.  A summary without the keys (None) is still not judged."""
+    from heli_uq.output import convergence
+    from heli_uq.output.health import MIN_DRAWS_MEASURED, UNCONVERGED, check_health
+
+    rng = np.random.default_rng(4)
+    summary = convergence(_nuts_idata({"a": rng.normal(size=(2, MIN_DRAWS_MEASURED - 2))}))
+    assert np.isnan(summary["rhat_max"]) and np.isnan(summary["ess_bulk_min"])
+    health = check_health({**HEALTHY, **summary, "windows": RIG_WINDOWS})
+    assert health["flags"] == [UNCONVERGED], health
+    assert any("cannot be measured from 2 chain(s) of 2 draws" in w for w in health["warnings"])
+    assert not any("model error" in n for n in health["notes"]), health["notes"]
+    assert any("not judged" in n for n in health["notes"]), health["notes"]
+    unmeasured = {k: None for k in ("rhat_max", "ess_bulk_min", "ess_tail_min")}
+    assert check_health({**HEALTHY, **unmeasured})["ok"]
+
+
+def test_one_chain_gets_the_rhat_of_its_halves():
+    """arviz has no R-hat for one chain; the halves of a stationary chain agree (R-hat near
+    1), those of a chain that drifts do not."""
+    from heli_uq.output import convergence
+    from heli_uq.output.diagnostics import RHAT_MAX
+
+    rng = np.random.default_rng(5)
+    steady = convergence(_nuts_idata({"a": rng.normal(size=(1, 2000))}))
+    assert steady["rhat_max"] <= RHAT_MAX and steady["worst_rhat_variable"] == "a"
+    drift = rng.normal(size=(1, 2000)) + np.linspace(0.0, 3.0, 2000)
+    assert convergence(_nuts_idata({"a": drift}))["rhat_max"] > RHAT_MAX
 
 
 #: The main job's measured coverage on the rig record (train 0-91 s, test 91-131 s).
@@ -515,8 +583,11 @@ def test_unconverged_run_warns_strict_fails_and_resume_checks_its_manifest(tmp_p
     manifest = json.loads((out / "chunks" / "manifest.json").read_text())
     assert manifest["seed"] == 0 and manifest["warmup"] == 5 and manifest["versions"]["jax"]
 
+    fitted = (out / "map.json").read_text()
+    (out / "map.json").write_text('{"m": 123.0}')  # as another run into this directory leaves it
     assert main(argv + ["--resume"]) == 0  # the finished run, reloaded: same warnings, no --strict
     assert "WARNING: UNCONVERGED" in capsys.readouterr().err
+    assert json.loads((out / "map.json").read_text()) == pytest.approx(json.loads(fitted))  # its own MAP
     for change, needles in ((["--seed", "2"], ["seed 0 -> 2"]), (["--chains", "4"], ["chains 2 -> 4"]),
                             (["--window", "0:0.8"], ["data_sha256 changed", "train_s"]),
                             (["--target-accept", "0.8"],
@@ -553,6 +624,43 @@ def test_resume_auto_continues_a_run_of_the_same_settings_and_starts_afresh_unde
     assert json.loads((out / "chunks" / "manifest.json").read_text())["seed"] == 2  # the new run is saved
     with pytest.raises(ParameterError, match="'auto' continues NUTS runs only"):
         sample_posterior(rec, tmp_path / "laplace", sampler="laplace", resume="auto", **kw)
+
+
+@pytest.mark.parametrize("sampler, there, kind", [("prior", "posterior.nc", "posterior run"),
+                                                   ("laplace", "prior.nc", "prior check")])
+def test_a_prior_check_and_a_posterior_do_not_share_a_directory(tmp_path, capsys, sampler, there, kind):
+    """Both write summary.json and bands.png: into a directory that holds the other kind's
+    results one would leave the other's files beside its own.  Refused before any work."""
+    from heli_uq.cli import main
+
+    rec = synthetic_experiment(duration=1.0, seed=4).to_csv(tmp_path / "rec.csv")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / there).write_bytes(b"")
+    assert main(["sample", "--data", str(rec), "--sampler", sampler, "--out", str(out)]) == 2
+    _one_line_error(capsys.readouterr().err, f"holds a {kind}'s results ({there})", "give another --out")
+    assert sorted(p.name for p in out.iterdir()) == [there]
+
+
+def test_a_record_the_start_values_cannot_simulate_is_one_clear_error():
+    """Voltages 20x the rig's (a record in other units): the log density is not finite at
+    the model's start values.  Said with the record's voltage range, not numpyro's
+    RuntimeError; a guess that simulates there (gains 20x smaller) is started from instead."""
+    from heli_uq.data import Experiment
+    from heli_uq.inference.density import log_density_setup
+    from heli_uq.inference.start import _density
+    from heli_uq.model import HeliModel
+
+    rec = synthetic_experiment(duration=4.0, seed=1)  # the pitch turns over after ~1 s
+    loud = Experiment(t=rec.t, u=20.0 * np.asarray(rec.u), y=rec.y, dt=rec.dt, source="loud.csv")
+    problem = make_problem(loud, error="iid")
+    with pytest.raises(ParameterError, match=r"^loud.csv: the log density is not finite at the "
+                                             r"model's start values .*\(voltages [0-9.]+ to [0-9.]+ V"):
+        log_density_setup(problem)
+    start = HeliModel().start_values()
+    quiet = {k: start[k] / 20.0 for k in ("K_theta_theta", "K_theta_psi", "K_psi_theta", "K_psi_psi")}
+    density = _density(problem, 0, [quiet])
+    assert np.isfinite(float(density.potential(density.x_init)))
 
 
 def test_an_interrupted_command_is_told_a_command_that_parses(tmp_path):

@@ -31,6 +31,12 @@ def cmd_design(args) -> int:
     sigma = None if args.noise is None else check_noise(_pair(args.noise, "--noise", ","))
     draws = SEARCH_BUDGETS[args.budget].draws
     prior = rivals = None
+    given = [flag for flag, on in (("--effects", args.effects), ("--model-file", args.model_file),
+                                   ("--model hybrid", args.model == "hybrid")) if on]  # fmt: skip
+    source = "--discovery" if args.discovery is not None else "--posterior" if args.posterior else None
+    if given and source:
+        raise ParameterError(f"{' and '.join(given)} with {source}: the models come from {source}; "
+                             "give one of them")  # fmt: skip
     if args.discovery is not None:
         if args.posterior is not None:
             raise ParameterError("--discovery and --posterior: give one of them, not both")

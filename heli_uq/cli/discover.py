@@ -18,6 +18,7 @@ def cmd_discover(args) -> int:
     from heli_uq.data import load_data, parse_window
     from heli_uq.discovery import BUDGETS, candidate_effects, discover
     from heli_uq.model import build_model
+    from heli_uq.model.spec import split_effects
 
     if args.max_effects < 1:
         raise ParameterError(f"--max-effects: expected an integer >= 1, found {args.max_effects}")
@@ -29,9 +30,14 @@ def cmd_discover(args) -> int:
     if args.fit_all:
         changes["screen"] = False
     budget = dataclasses.replace(BUDGETS[args.budget], **changes) if changes else args.budget
-    base = [s.strip() for s in (args.base_effects or "").split(",") if s.strip()]
+    base = split_effects(args.base_effects, where="--base-effects")
     build_model(base, where="--base-effects")
-    candidates = [s.strip() for s in (args.candidates or "").split(",") if s.strip()] or None
+    candidates = split_effects(args.candidates, where="--candidates") or None
+    if args.candidates is not None and not candidates:
+        raise ParameterError(f"--candidates: expected AXIS:EFFECT,..., found {args.candidates!r}")
+    if candidates and not candidate_effects(base, candidates):
+        raise ParameterError(f"--candidates: every one ({', '.join(candidates)}) is in the base model "
+                             "already (--base-effects): nothing to try")  # fmt: skip
     # prior options name parameters of the base model or of a candidate effect
     every = build_model(base + candidate_effects(base, candidates), where="--candidates")
     priors = prior_changes_from_args(args, every)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from heli_uq.cli.options import (
@@ -22,6 +23,9 @@ __all__ = ["add_parser", "cmd_identifiability"]
 def cmd_identifiability(args) -> int:
     from heli_uq.data import load_data, parse_window
     from heli_uq.identifiability import identifiability_report
+    from heli_uq.identifiability.report import check_posterior_data
+    from heli_uq.output import check_health, convergence
+    from heli_uq.output.health import format_warnings
     from heli_uq.output.inference_data import load_posterior
 
     model = model_from_args(args)
@@ -34,18 +38,18 @@ def cmd_identifiability(args) -> int:
         free = [n.strip() for n in args.free.split(",") if n.strip()]
     base = {}
     if args.params is not None:
-        from heli_uq.io import read_json_object
+        from heli_uq.model.tables import load_params_json
 
-        base.update({k: float(v) for k, v in model.complete(
-            read_json_object(args.params, "parameter"), where=args.params).items()})  # fmt: skip
+        base.update(load_params_json(args.params, model))
     for name, prior in priors.params.items():
         if not prior.free:
             base[name] = prior.a
-    posterior = None
+    posterior, note = None, None
     if args.posterior is not None:
         if not Path(args.posterior).is_file():
             raise ParameterError(f"--posterior {args.posterior}: no such file")
         idata, post_model = load_posterior(args.posterior)
+        check_posterior_data(idata.posterior, record, where=f"--posterior {args.posterior}")
         if json.dumps(post_model.specification(), sort_keys=True) != json.dumps(model.specification(),
                                                                                sort_keys=True):  # fmt: skip
             raise ParameterError(f"--posterior {args.posterior}: sampled for the model "
@@ -55,10 +59,15 @@ def cmd_identifiability(args) -> int:
         # the posterior's own model: its terms hold what they took from the posterior's record
         # (a GP's pairs over the whole span, a network's input scaling), so its draws map
         model, posterior = post_model, idata.posterior
+        health = check_health(convergence(idata))
+        if not health["ok"]:  # reported, as by 'sample': the user decides
+            print(format_warnings(health), file=sys.stderr)
+            note = (f"{', '.join(health['flags'])}: {'; '.join(health['warnings'])}; its "
+                    "contraction is not to be trusted")  # fmt: skip
     out = out_dir(args.out)
     result = identifiability_report(
         record, out, model=model, free=free, base=base, priors=priors, posterior=posterior,
-        error=args.error, n_points=args.points, seed=args.seed,
+        error=args.error, n_points=args.points, seed=args.seed, posterior_note=note,
     )  # fmt: skip
     st = result["structural"]
     classes = {}

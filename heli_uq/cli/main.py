@@ -16,10 +16,12 @@ setting ``handler=<function(args) -> int>`` and returning the parser) plus one e
 
 Exit codes: 0 success, 1 the simulation failed (diverged), 2 bad input or usage (any
 :class:`~heli_uq.errors.HeliUQError`, an output that cannot be written, or an argparse
-usage error), 3 a health check failed under ``--strict``, 130 interrupted (SIGINT; the
-finished draws are saved and one line says how to resume).  Errors are reported as one
-line ``heli-uq: error: <message>`` on stderr; a message from the library that starts
-with an argument name (``effects: ...``) is shown with the option that set it
+usage error, a ``--seed`` outside 0..2**32-1), 3 a health check failed under ``--strict``,
+70 an internal error (an exception no check caught: a bug, reported in one line; the
+environment variable ``HELI_UQ_TRACEBACK=1`` lets its traceback through), 130
+interrupted (SIGINT; the finished draws are saved and one line says how to resume).
+Errors are reported as one line ``heli-uq: error: <message>`` on stderr; a message from
+the library that starts with an argument name (``effects: ...``) is shown with the option that set it
 (``--effects: ...``).
 
 JAX: the commands that sample set one XLA host device per chain
@@ -32,9 +34,11 @@ resumed run or the next record of the same length reads them instead of compilin
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import shlex
 import sys
+from pathlib import Path
 
 from heli_uq.cli import data, design, discover, identifiability, run, sample, simulate
 from heli_uq.cli.options import Formatter
@@ -55,8 +59,36 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its usage errors on one line (``heli-uq sample: error: argument
+    --seed: invalid int value: '1.5' (see 'heli-uq sample --help')``), exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+#: Seeds numpy and JAX both take: 0 <= seed < 2**32.
+SEED_LIMIT = 2**32
+#: Exit status of an unexpected exception (a bug; EX_SOFTWARE of sysexits.h).
+EXIT_INTERNAL = 70
+#: Environment variable that lets an unexpected exception's traceback through (tests set it).
+TRACEBACK_ENV = "HELI_UQ_TRACEBACK"
+
+
+def _internal_error(exc: BaseException) -> str:
+    """One line for an exception no check caught: its type, message and where it rose."""
+    import traceback
+
+    frames = traceback.extract_tb(exc.__traceback__)
+    ours = [f for f in frames if "heli_uq" in f.filename] or frames
+    where = f" at {Path(ours[-1].filename).name}:{ours[-1].lineno}" if ours else ""
+    text = " ".join(str(exc).split())
+    return (f"{PROG}: internal error (a bug: please report it with the command): "
+            f"{type(exc).__name__}: {text}{where}; set {TRACEBACK_ENV}=1 for the traceback")
+
+
 def _build():
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog=PROG,
         description="Bayesian uncertainty quantification of a 2-DOF laboratory helicopter.\n"
                     "States (theta, psi, omega_theta, omega_psi) in rad and rad/s; voltages "
@@ -93,7 +125,6 @@ def _interrupt_message(exc: KeyboardInterrupt, args, argv: list[str]) -> str:
     """One line: what was saved and the command that continues: the same one with
     ``--resume`` for a command that has it, the same one unchanged for a command whose
     parser sets ``rerun_reuses`` (what a rerun picks up, e.g. ``discover``)."""
-    from pathlib import Path
 
     from heli_uq.inference.interrupt import Interrupted
     from heli_uq.inference.manifest import MANIFEST_FILE
@@ -119,6 +150,9 @@ def main(argv: list[str] | None = None) -> int:
     parser, options = _build()
     argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
+    if not 0 <= getattr(args, "seed", 0) < SEED_LIMIT:
+        parser.exit(2, f"{PROG}: error: --seed: expected an integer in 0..{SEED_LIMIT - 1}, "
+                       f"found {args.seed}\n")  # fmt: skip
     configure_cli(args.quiet)
     use_compilation_cache()
     if args.quiet and hasattr(args, "no_progress"):
@@ -136,6 +170,11 @@ def main(argv: list[str] | None = None) -> int:
             message = _with_option(message, options.get(args.handler, set()))
         print(f"{PROG}: error: {message}", file=sys.stderr)
         return 2
+    except Exception as exc:
+        if os.environ.get(TRACEBACK_ENV):
+            raise
+        print(_internal_error(exc), file=sys.stderr)
+        return EXIT_INTERNAL
 
 
 if __name__ == "__main__":

@@ -190,6 +190,8 @@ def check_positive(args, names) -> None:
 
 def out_dir(path: str) -> Path:
     """Create the output directory if missing (OSError propagates: exit 2)."""
+    if not str(path).strip():  # Path("") is the working directory
+        raise ParameterError(f"--out: expected a directory, found {path!r}")
     out = Path(path)
     out.mkdir(parents=True, exist_ok=True)
     return out

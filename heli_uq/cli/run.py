@@ -17,7 +17,7 @@ from heli_uq.cli.options import (
     report_health,
 )
 from heli_uq.cli.simulate import simulate_to_files
-from heli_uq.errors import HeliUQError
+from heli_uq.errors import HeliUQError, ParameterError
 
 __all__ = ["add_parser", "cmd_run", "RUN_TRAIN_FRACTION"]
 
@@ -74,6 +74,13 @@ def cmd_run(args) -> int:
     numpyro.set_host_device_count(args.chains)  # before the first JAX computation
     model = model_from_args(args)
     out = out_dir(args.out)
+    if args.resume:  # refused now, not after the record, Table 3 and prior stages
+        from heli_uq.inference.manifest import MANIFEST_FILE
+        from heli_uq.inference.nuts import CHUNK_DIR
+
+        if not (out / "posterior" / CHUNK_DIR / MANIFEST_FILE).is_file():
+            raise ParameterError(f"--resume: nothing to resume in {out / 'posterior'}; run the command "
+                                 "without --resume")  # fmt: skip
     record = _record_for_run(args.data, out)
     _check_posterior_size(record, model, args)
     print(show_record(record, out_dir(out / "data")))
@@ -111,7 +118,8 @@ def cmd_run(args) -> int:
     print(json.dumps({k: summary[k] for k in keys if k in summary}))
     print(f"wrote {post / 'posterior.nc'}, summary.json, bands.png")
     print(f"main job finished; figures and tables in {out}")
-    return status or report_health(summary, args.strict)
+    health = report_health(summary, args.strict)  # printed whatever the status
+    return status or health
 
 
 def add_parser(subparsers):

@@ -42,6 +42,9 @@ def cmd_sample(args) -> int:
     if args.max_draws is not None and (args.sampler != "nuts" or not args.max_draws > args.draws):
         raise ParameterError(f"--max-draws: NUTS only and more than --draws ({args.draws}), found "
                              f"{args.max_draws} with --sampler {args.sampler}")  # fmt: skip
+    if args.target_accept is not None and (args.sampler != "nuts" or not 0.0 < args.target_accept < 1.0):
+        raise ParameterError(f"--target-accept: NUTS only and in (0, 1), found {args.target_accept:g} "
+                             f"with --sampler {args.sampler}")  # fmt: skip
     target_accept = TARGET_ACCEPT if args.target_accept is None else args.target_accept
     if args.sampler == "nuts":
         # One XLA host device per chain, so numpyro runs the chains in parallel; only
@@ -58,6 +61,7 @@ def cmd_sample(args) -> int:
     if test is not None and train is None:
         raise ParameterError("--test needs --train (the test window follows the training window)")
     out = out_dir(args.out)
+    _refuse_the_other_kind(out, args.sampler == "prior")
     if args.sampler == "prior":
         return _prior_check(args, record, model, priors, train, test, out)
     idata, summary = sample_posterior(
@@ -87,6 +91,22 @@ def cmd_sample(args) -> int:
                          train or (float(record.t[0]), float(record.t[0] + record.duration)))
     print(f"wrote {out / 'posterior.nc'}, summary.csv, summary.json, bands.png, map.json (--init {out})")
     return report_health(summary, args.strict)
+
+
+#: The file that marks a directory as a posterior run's, and as a prior check's.
+KIND_FILES = {False: "posterior.nc", True: "prior.nc"}
+
+
+def _refuse_the_other_kind(out: pathlib.Path, prior: bool) -> None:
+    """A prior check and a posterior run write summary.json and bands.png under the same
+    names: into a directory that holds the other's results, one would leave the other's
+    files beside its own, and the directory would describe two runs."""
+    other = out / KIND_FILES[not prior]
+    if other.is_file():
+        kind = "posterior run" if prior else "prior check"
+        raise ParameterError(f"--out {out}: holds a {kind}'s results ({other.name}); this run would "
+                             "replace its summary.json and bands.png and leave its other files: "
+                             "give another --out")  # fmt: skip
 
 
 def _init_file(path: str) -> pathlib.Path:

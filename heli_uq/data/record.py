@@ -32,6 +32,14 @@ __all__ = ["COLUMNS", "HEADER", "Experiment", "parse_window", "read_record"]
 #: Relative difference at which a repeated sample time counts as a different one (a
 #: writer that prints dt on every row may round it).
 DT_REL_TOL = 1e-9
+#: Sample times a record may have [s]: the rig's is 0.01; outside, a value is a unit or
+#: writing error (5e-324 s made every time stamp 0, 1e-300 s a singular fit).
+DT_RANGE = (1e-6, 10.0)
+#: Largest magnitude of each measured column (voltages [V], angles [rad]) a record may hold:
+#: far beyond any rig (its motors take a few volts; 1e4 rad is 1600 turns), so a value
+#: above it is a writing error, not a measurement (1e300 in an angle column was read as a
+#: wrap of 1.6e299 turns).
+PLAUSIBLE = ((1e3, "V"), (1e3, "V"), (1e4, "rad"), (1e4, "rad"))
 #: Short column names, used in error messages and accepted as a plain header.
 COLUMNS = ("u_theta", "u_psi", "theta", "psi", "dt")
 #: The published header, written verbatim by :meth:`Experiment.to_csv`.
@@ -338,10 +346,15 @@ def read_record(path: str | os.PathLike) -> Experiment:
             if x is None or not math.isfinite(x):
                 raise fail(line, col, f"expected a finite number, found {cell!r}")
             if col < 4:
+                limit, unit = PLAUSIBLE[col]
+                if abs(x) > limit:
+                    raise fail(line, col, f"expected {'a voltage' if col < 2 else 'an angle'} within "
+                                          f"±{limit:g} {unit}, found {cell!r}")  # fmt: skip
                 values[k, col] = x
             elif k == 0:
-                if x <= 0:
-                    raise fail(line, col, f"expected a sample time > 0, found {cell!r}")
+                if not DT_RANGE[0] <= x <= DT_RANGE[1]:
+                    raise fail(line, col, f"expected a sample time in {DT_RANGE[0]:g}..{DT_RANGE[1]:g} s, "
+                                          f"found {cell!r}")  # fmt: skip
                 dt = x
             elif not math.isclose(x, dt, rel_tol=DT_REL_TOL):
                 raise fail(line, col, f"sample time {cell!r} differs from {dt!r} in line "

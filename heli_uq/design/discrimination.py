@@ -84,8 +84,12 @@ class Rivals:
             ranked = json.loads(path.read_text(encoding="utf-8"))["candidates"]
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise DataFormatError(f"{path}: not a discovery result ({type(exc).__name__}: {exc})") from None
-        names = [c["model"] for c in ranked if c.get("step", 1) == 1 and c.get("score") is not None
-                 and np.isfinite(c["score"])]  # failed or screened-out rows have no score
+        try:  # failed or screened-out rows have no score
+            names = [str(c["model"]) for c in ranked if c.get("step", 1) == 1 and c.get("score") is not None
+                     and np.isfinite(float(c["score"]))]  # fmt: skip
+        except (AttributeError, KeyError, TypeError, ValueError) as exc:
+            raise DataFormatError(f"{path}: 'candidates' must be a list of objects with 'model' and a "
+                                  f"numeric 'score' ({type(exc).__name__}: {exc})") from None
         if len(names) < 2:
             raise DataFormatError(f"{path}: expected at least two fitted candidates, found {len(names)}")
         rivals = [_rival(directory, name, dt) for name in names[:2]]

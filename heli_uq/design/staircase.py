@@ -23,6 +23,10 @@ __all__ = ["StaircaseBounds", "Staircase", "random_staircase", "mutate", "PITCH_
 #: rig record stays within -39 to -4 deg, where the model was fitted; a design that drives the
 #: arm over the top gains information from a motion the rig cannot make safely.
 PITCH_ENVELOPE = (math.radians(-60.0), 0.0)
+#: Most samples a designed experiment may have (10,000 s at the rig's 0.01 s, far above
+#: the 60-131 s experiments designed here): each candidate's information simulates every
+#: prior draw's sensitivities over all of them, and 1e9 samples asked for 15 GiB at once.
+MAX_DESIGN_SAMPLES = 1_000_000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,6 +77,10 @@ class StaircaseBounds:
             raise ParameterError(f"dt: expected a number > 0 [s], found {self.dt!r}")
         if not (math.isfinite(self.duration) and self.duration > 0):
             raise ParameterError(f"duration: expected a number > 0 [s], found {self.duration!r}")
+        if self.duration / self.dt > MAX_DESIGN_SAMPLES:
+            raise ParameterError(f"duration: {self.duration:g} s at dt = {self.dt:g} s is "
+                                 f"{self.duration / self.dt:.3g} samples, more than a design's "
+                                 f"{MAX_DESIGN_SAMPLES:,}")  # fmt: skip
         if self.hold_samples[0] < 1:
             raise ParameterError(f"segment lengths: the shortest, {lo:g} s, is below one sample "
                                  f"(dt = {self.dt:g} s)")  # fmt: skip

@@ -45,10 +45,10 @@ from heli_uq.model.prior import Prior
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.probability.likelihood import loss_v
 from heli_uq.probability.priors import PriorSet, RecordStart
-from heli_uq.probability.problem import make_problem
+from heli_uq.probability.problem import data_sha256, make_problem
 
 __all__ = ["identifiability_report", "prior_moments", "draws_in_w", "contraction",
-           "profile_coordinates", "PRIOR_RANGE_SD"]  # fmt: skip
+           "check_posterior_data", "profile_coordinates", "PRIOR_RANGE_SD"]  # fmt: skip
 
 #: Half-width of the explored prior range, in prior standard deviations (of the log for log-normals).
 PRIOR_RANGE_SD = 2.0
@@ -91,6 +91,36 @@ def prior_moments(pv: ParameterVector, priors: PriorSet,
             mean.append(p.a)
             sd.append(p.b)
     return np.asarray(mean), np.asarray(sd)
+
+
+def check_posterior_data(posterior, record: Experiment, where: str = "posterior") -> None:
+    """Refuse a posterior computed from other data than ``record``'s: the samples of its
+    training window (attributes ``train_s``, ``train_sha256`` of ``posterior.nc``) must be
+    in ``record`` with the same values.  A posterior without them (written before they
+    were) is not checked.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``where``, the posterior's record and window, and what differs.
+    """
+    attrs = posterior.attrs
+    if "train_sha256" not in attrs:
+        return
+    a, b = json.loads(attrs["train_s"])
+    t, dt = np.asarray(record.t), float(record.dt)
+    i0 = int(np.searchsorted(t, a - 0.5 * dt))
+    n = int(round((b - a) / dt))
+    covered = i0 + n <= len(t) and abs(t[min(i0, len(t) - 1)] - a) < 0.5 * dt
+    if covered:
+        part = slice(i0, i0 + n)
+        if data_sha256(record.u[part], record.y[part], t[part]) == attrs["train_sha256"]:
+            return
+    why = ("this record does not hold that window" if not covered
+           else "this record's samples there differ")  # fmt: skip
+    raise ParameterError(f"{where}: sampled on {a:g}-{b:g} s of {attrs.get('source', 'a record')}, and "
+                         f"{why} ({record.source}); give the record it was sampled on, with a window "
+                         "that holds that span")
 
 
 def draws_in_w(posterior, pv: ParameterVector, source: str = "posterior") -> np.ndarray:
@@ -192,7 +222,7 @@ def profile_coordinates(pv: ParameterVector, fit, prior_mean, prior_sd, null_bas
 def identifiability_report(record: Experiment, out_dir, *, model: HeliModel | None = None,
                            free=None, base=None, priors: PriorSet | None = None, posterior=None,
                            error: str = "iid", n_points: int = 5, seed: int = 0, substeps=None,
-                           log=None) -> dict:  # fmt: skip
+                           posterior_note: str | None = None, log=None) -> dict:  # fmt: skip
     """Run the whole report on ``record`` and write it to ``out_dir``; returns the JSON dict.
 
     Parameters
@@ -212,17 +242,22 @@ def identifiability_report(record: Experiment, out_dir, *, model: HeliModel | No
     posterior : xarray.Dataset, optional
         The ``posterior`` group of a ``posterior.nc`` for the Bayesian view (the CLI reads
         it with :func:`heli_uq.output.load_posterior`); without it the Laplace
-        approximation.
+        approximation.  It must come from ``record``'s data (:func:`check_posterior_data`).
     error : {"iid", "ar1"}
     n_points : int
         Points of the structural analysis (the fit and ``n_points - 1`` random ones).
     substeps : int, optional
         RK4 substeps per sample (default: from the model's stiffness at ``base``).
+    posterior_note : str, optional
+        Said after the Bayesian view's source, e.g. that the posterior failed its health
+        checks (the CLI's, from :func:`heli_uq.output.check_health`).
     """
     from heli_uq.identifiability import figures as figs
     from heli_uq.simulation.stiffness import default_substeps
 
     t_start = time.perf_counter()
+    if posterior is not None:
+        check_posterior_data(posterior, record)
     log = progress_log(log, __name__)
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -265,7 +300,7 @@ def identifiability_report(record: Experiment, out_dir, *, model: HeliModel | No
     null_vectors = [np.array([d["loadings"][n] for n in pv.names]) for d in st.null_directions]
     if posterior is not None:
         draws = draws_in_w(posterior, pv)
-        source = "MCMC draws of the given posterior"
+        source = "MCMC draws of the given posterior" + (f" ({posterior_note})" if posterior_note else "")
     else:
         draws = precision_draws(fit.w, _fisher_matrix(fim) + np.diag(1.0 / prior_sd**2), LAPLACE_DRAWS, seed)
         source = "Laplace approximation (F + prior precision)^-1 at the fit (no posterior given)"

@@ -55,19 +55,32 @@ class Checkpoint:
         atomic_write_bytes(self.directory / _START, pickle.dumps({"start": start_info}))
 
     def manifest(self) -> dict | None:
-        """The saved manifest, or None if there is none."""
+        """The saved manifest, or None if there is none.
+
+        Raises
+        ------
+        ParameterError
+            If the file is damaged (not a JSON object).
+        """
         path = self.directory / MANIFEST_FILE
         if not path.exists():
             return None
-        return json.loads(path.read_text(encoding="utf-8"))
+        saved = _read(path, lambda f: json.loads(f.read().decode("utf-8")))
+        if not isinstance(saved, dict):
+            raise ParameterError(f"resume: {path} is damaged (expected a JSON object, found "
+                                 f"{type(saved).__name__}); {_AGAIN}")  # fmt: skip
+        return saved
 
     def obstacle(self, manifest: dict) -> str | None:
         """Why a run with ``manifest`` cannot continue the saved one (a phrase: ``"nothing
         to resume"``, ``"a run without a manifest (older heli_uq)"``, or ``"other settings
         (...)"`` naming each differing setting with its saved and new value); None if it can."""
-        saved = self.manifest()
         if not (self.directory / _START).exists():
             return "nothing to resume"
+        try:
+            saved = self.manifest()
+        except ParameterError:
+            return "a damaged manifest"
         if saved is None:
             return "a run without a manifest (older heli_uq)"
         diff = mismatch_message(saved, manifest)
@@ -82,14 +95,14 @@ class Checkpoint:
             If there is no saved run to resume, or the saved run's manifest differs
             (one line naming each differing setting with its saved and new value).
         """
+        self.manifest()  # a damaged one is said as such (ParameterError)
         why = self.obstacle(manifest)
         if why is not None and self.manifest() is not None and (self.directory / _START).exists():
             raise ParameterError(f"resume: the run in {self.directory} was made with {why}; give the "
                                  "same settings, or start again without resuming")  # fmt: skip
         if why is not None:
             raise ParameterError(f"resume: {why} in {self.directory}; start the run without resuming")
-        with open(self.directory / _START, "rb") as fh:
-            return pickle.load(fh)["start"]
+        return _read(self.directory / _START, lambda fh: dict(pickle.load(fh)["start"]))
 
     def save(self, stream: str, index: int, record: dict) -> None:
         """Write chunk ``index`` of ``stream`` (arrays and the state to continue from)."""
@@ -99,6 +112,22 @@ class Checkpoint:
         """The saved chunks of ``stream``, in order."""
         records = []
         while (f := self._chunk(stream, len(records))).exists():
-            with open(f, "rb") as fh:
-                records.append(pickle.load(fh))
+            records.append(_read(f, pickle.load))
         return records
+
+
+#: What a damaged checkpoint file's message tells the user to do.
+_AGAIN = "start the run again without resuming (it replaces the saved files)"
+
+
+def _read(path: pathlib.Path, reader):
+    """``reader(file)`` of ``path`` opened in binary; a file that does not read (cut short,
+    overwritten, another format) is a ParameterError naming it, not the reader's error."""
+    try:
+        with open(path, "rb") as fh:
+            return reader(fh)
+    except OSError:
+        raise
+    except Exception as err:  # pickle and json raise many kinds on damaged input
+        raise ParameterError(f"resume: {path} is damaged ({type(err).__name__}: "
+                             f"{' '.join(str(err).split())[:80]}); {_AGAIN}") from None

@@ -19,6 +19,7 @@ from jax.flatten_util import ravel_pytree
 from numpyro.infer import init_to_value
 from numpyro.infer.util import constrain_fn, initialize_model
 
+from heli_uq.errors import ParameterError
 from heli_uq.model.tables import X0_NAMES
 from heli_uq.probability.numpyro_model import YAW_MOMENTUM_SITE, heli_model
 from heli_uq.probability.priors import OUTPUTS
@@ -114,10 +115,20 @@ def log_density_setup(problem: Problem, init_values: dict | None = None, seed: i
     if init_values is None:
         x0 = np.concatenate([problem.y[0], np.zeros(2)])
         init_values = init_sites(problem, problem.model.start_values(), x0)
-    info = initialize_model(
-        jax.random.PRNGKey(seed), heli_model, model_args=(problem,), model_kwargs=kwargs,
-        init_strategy=init_to_value(values=init_values), validate_grad=False,
-    )  # fmt: skip
+    try:
+        info = initialize_model(
+            jax.random.PRNGKey(seed), heli_model, model_args=(problem,), model_kwargs=kwargs,
+            init_strategy=init_to_value(values=init_values), validate_grad=False,
+        )  # fmt: skip
+    except RuntimeError as err:  # numpyro: the log density is not finite at the values
+        if "Cannot find valid initial parameters" not in str(err):
+            raise
+        u = np.asarray(problem.u)
+        raise ParameterError(
+            f"{problem.source}: the log density is not finite at the model's start values (its "
+            "simulation from them blows up or turns the pitch over); check the record's units "
+            f"(voltages {u.min():.3g} to {u.max():.3g} V, angles in rad) or start from values "
+            "near the data (guesses; on the command line --init)") from None  # fmt: skip
     # validate_grad=False: numpyro would otherwise run value-and-grad of the model op by
     # op (no jit), ~13 s for a 500-sample record; the MAP checks finiteness anyway.
     x_init, unravel = ravel_pytree(info.param_info.z)

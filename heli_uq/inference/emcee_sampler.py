@@ -41,7 +41,7 @@ from heli_uq.inference.density import LogDensity, constrain_draws, coordinate_na
 from heli_uq.inference.interrupt import Progress
 from heli_uq.inference.manifest import run_manifest
 from heli_uq.inference.sampler_run import SamplerRun
-from heli_uq.inference.start import Start, initial_draws, prepare_start, whitening
+from heli_uq.inference.start import Start, initial_draws, map_parameters, prepare_start, whitening
 from heli_uq.probability.problem import Problem
 
 __all__ = ["run_emcee", "INIT_SCALE", "MAX_DIM", "TAU_FACTOR"]
@@ -322,6 +322,7 @@ def run_emcee(problem: Problem, out_dir, *, ensembles: int = 2, walkers: int | N
         "burn": burn, "thin": thin, "seed": seed, "chunk": chunk,
         "wall_seconds": time.perf_counter() - t_start,
         **{k: v for k, v in start_info.items() if k not in ("x_map", "covariance", "walkers")},
+        "map_parameters": map_parameters(density, start_info["x_map"])[0],  # a resume's too
         "init_scale": INIT_SCALE,
         "acceptance": acceptance, "tau": taus, "ess_emcee": ess, "warnings": warnings,
         "coordinates": coordinate_names(density),

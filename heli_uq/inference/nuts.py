@@ -46,7 +46,7 @@ from heli_uq.inference.nuts_blocks import (
     save_chunk,
 )
 from heli_uq.inference.sampler_run import SamplerRun
-from heli_uq.inference.start import Start, initial_draws, prepare_start
+from heli_uq.inference.start import Start, initial_draws, map_parameters, prepare_start
 from heli_uq.inference.whiten import SamplerMap, choose_walls
 from heli_uq.probability.problem import Problem
 
@@ -336,6 +336,7 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     stats = {k: np.concatenate([r["stats"][k] for r in records], axis=1)[:, :draws]
              for k in records[0]["stats"]}  # fmt: skip
     out_info = {k: v for k, v in info.items() if k not in ("x_map", "covariance")}
+    out_info["map_parameters"] = map_parameters(density, info["x_map"])[0]  # a resume's too
     if warmup != requested_warmup:
         out_info["warmup_requested"] = requested_warmup
     if draws > requested_draws:

@@ -55,8 +55,8 @@ from heli_uq.model.terms.neural_torque import NeuralTorque
 from heli_uq.probability.problem import Problem
 from heli_uq.simulation.stiffness import MAX_SUBSTEPS
 
-__all__ = ["Start", "prepare_start", "start_parameters", "map_starts", "startable", "initial_draws",
-           "whitening", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
+__all__ = ["Start", "map_parameters", "prepare_start", "start_parameters", "map_starts", "startable",
+           "initial_draws", "whitening", "NETWORK_NEWTON_STEPS", "MAP_DECREMENT_MAX",
            "NETWORK_MAP_DECREMENT_MAX", "RESCALE_RTOL", "PoorBasin"]  # fmt: skip
 
 #: Newton steps of the MAP of a model with a neural term.  Its posterior is not convex (the
@@ -203,6 +203,16 @@ def map_starts(problem: Problem, density: LogDensity, n: int, seed: int = 0, gue
     return out
 
 
+def map_parameters(density: LogDensity, x_map) -> tuple[dict, np.ndarray]:
+    """The point ``x_map`` (d,) of the sampler's unconstrained coordinates as ``(params,
+    x0)``: every model parameter [SI] (fixed ones at their fixed values) and the initial
+    state (4,) [rad, rad, rad/s, rad/s]."""
+    best = {k: np.asarray(v[0]) for k, v in constrain_draws(density, np.asarray(x_map)[None]).items()}
+    params = {n: float(best[n]) if n in best else float(p.a)
+              for n, p in density.problem.priors.params.items()}  # fmt: skip
+    return params, np.array([float(best[n]) for n in X0_NAMES])
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class Start:
     """A MAP start: the problem (with its final substeps), its log density, the MAP point,
@@ -245,10 +255,7 @@ class Start:
     def map_point(self) -> tuple[dict, np.ndarray]:
         """The MAP as ``(params, x0)``: every model parameter [SI] (fixed ones at their
         fixed values) and the initial state (4,) [rad, rad, rad/s, rad/s]."""
-        best = {k: np.asarray(v[0]) for k, v in constrain_draws(self.density, self.x_map[None]).items()}
-        params = {n: float(best[n]) if n in best else float(p.a)
-                  for n, p in self.problem.priors.params.items()}  # fmt: skip
-        return params, np.array([float(best[n]) for n in X0_NAMES])
+        return map_parameters(self.density, self.x_map)
 
     def map_guess(self) -> dict:
         """The MAP as one guess dict for a refit (:func:`prepare_start`'s ``guesses``): every
@@ -295,6 +302,22 @@ def whitening(start_info: dict) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(start_info["x_map"], dtype=float), np.linalg.cholesky(0.5 * (cov + cov.T))
 
 
+def _density(problem: Problem, seed: int, guesses) -> LogDensity:
+    """The log density, set up at the model's start values or, where its simulation from
+    them fails, at the first guess that simulates (the record's first angles, at rest)."""
+    try:
+        return log_density_setup(problem, seed=seed)
+    except ParameterError:
+        x0 = np.concatenate([np.asarray(problem.y[0], dtype=float), np.zeros(2)])
+        for guess in guesses:
+            values = init_sites(problem, {**problem.model.start_values(), **startable(problem, guess)}, x0)
+            try:
+                return log_density_setup(problem, init_values=values, seed=seed)
+            except ParameterError:
+                continue
+        raise
+
+
 def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
                   map_maxiter: int = 0, guesses=(), newton_steps: int | None = None,
                   polish_best: int | None = None, abandon_above: float | None = None,
@@ -338,14 +361,14 @@ def prepare_start(problem: Problem, *, n_starts: int = 4, seed: int = 0,
     if newton_steps is None:
         newton_steps = NETWORK_NEWTON_STEPS if network else NEWTON_STEPS
         polish_best = 1 if network and polish_best is None else polish_best
-    density = log_density_setup(problem, seed=seed)
+    density = _density(problem, seed, guesses)
     starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, grid=grid,
                         from_fit=from_fit, log=log)
     while not starts and problem.substeps < MAX_SUBSTEPS:  # every fit left a model too stiff
         problem = problem.with_substeps(retry_substeps(problem, guesses))
         if log is not None:
             log(f"no MAP start simulates the record: again at {problem.substeps} solver substeps")
-        density = log_density_setup(problem, seed=seed)
+        density = _density(problem, seed, guesses)
         starts = map_starts(problem, density, max(n_starts, 1), seed, guesses, grid=grid,
                         from_fit=from_fit, log=log)
     if not starts:

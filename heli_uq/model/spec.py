@@ -17,6 +17,7 @@ Every error names the item, what was expected (the valid choices) and what was f
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 
@@ -26,10 +27,30 @@ from heli_uq.model.parameter import AXES
 from heli_uq.model.terms import TERMS, ClosedFormMechanics, LagrangianMechanics, LinearTorque
 from heli_uq.model.terms.base import AbstractInputMap
 
-__all__ = ["parse_effects", "build_model", "model_from_description", "load_model_file", "with_effects"]
+__all__ = ["parse_effects", "split_effects", "build_model", "model_from_description", "load_model_file",
+           "with_effects"]
 
 _MECHANICS = {"closed_form": ClosedFormMechanics, "lagrangian": LagrangianMechanics}
 _FILE_KEYS = ("effects", "mechanics", "linear_torque")
+
+
+#: What an option whose default is of this type must be given as.
+_TYPE_WORDS = {bool: "true or false", float: "a number", str: "a string"}
+
+
+def _option_type(default):
+    """The type an option's value must have, from its default (None: not checked)."""
+    if isinstance(default, bool):
+        return bool
+    if isinstance(default, (int, float)):
+        return float
+    return str if isinstance(default, str) else None
+
+
+def _is(value, expected) -> bool:
+    if expected is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    return isinstance(value, expected)
 
 
 def _effect(item, where: str):
@@ -47,18 +68,23 @@ def _effect(item, where: str):
             raise ParameterError(f"{where}: effect {item!r}: expected the keys 'effect' and 'axis'")
     else:
         raise ParameterError(f"{where}: effect {item!r}: expected 'AXIS:EFFECT' or an object")
-    if name not in TERMS:
+    if not isinstance(name, str) or name not in TERMS:
         raise ParameterError(f"{where}: unknown effect {name!r}; expected one of "
                              f"{', '.join(TERMS)}")  # fmt: skip
-    if axis not in AXES:
+    if not isinstance(axis, str) or axis not in AXES:
         raise ParameterError(f"{where}: effect {name!r}: unknown axis {axis!r}; expected one of "
                              f"{', '.join(AXES)}")  # fmt: skip
     cls = TERMS[name]
-    allowed = sorted(f for f in cls.__dataclass_fields__ if f != "axis")
-    bad = sorted(set(options) - set(allowed))
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init and f.name != "axis"}
+    bad = sorted(set(options) - set(fields))
     if bad:
         raise ParameterError(f"{where}: effect {name!r}: unknown option(s) {', '.join(bad)}; "
-                             f"expected {', '.join(allowed) or 'none'}")  # fmt: skip
+                             f"expected {', '.join(sorted(fields)) or 'none'}")  # fmt: skip
+    for key, value in options.items():
+        expected = _option_type(fields[key].default)
+        if expected is not None and not _is(value, expected):
+            raise ParameterError(f"{where}: effect {name!r}: option {key!r}: expected "
+                                 f"{_TYPE_WORDS[expected]}, found {value!r}")  # fmt: skip
     try:
         return cls(axis=axis, **options)
     except (TypeError, ValueError) as exc:
@@ -77,7 +103,7 @@ def build_model(effects=(), *, mechanics: str = "closed_form", linear_torque: bo
     linear_torque : bool
         Include ``F = K u - D v`` (default True).
     """
-    if mechanics not in _MECHANICS:
+    if not isinstance(mechanics, str) or mechanics not in _MECHANICS:
         raise ParameterError(f"{where}: unknown mechanics {mechanics!r}; expected one of "
                              f"{', '.join(_MECHANICS)}")  # fmt: skip
     terms = [_effect(item, where) for item in effects]
@@ -116,8 +142,16 @@ def with_effects(model: HeliModel, keep=lambda effect: True, add=(), *, where: s
 
 def parse_effects(text: str | None, *, where: str = "effects") -> HeliModel:
     """The model of ``"yaw:coulomb_friction,yaw:torque_offset"`` (empty: the paper's model)."""
-    items = [s.strip() for s in (text or "").split(",") if s.strip()]
-    return build_model(items, where=where)
+    return build_model(split_effects(text, where=where), where=where)
+
+
+def split_effects(text: str | None, *, where: str = "effects") -> list[str]:
+    """``"yaw:coulomb_friction, yaw:torque_offset"`` as a list of its items (empty: none);
+    an empty item between commas is refused (a typo, not "no effect")."""
+    items = [s.strip() for s in (text or "").split(",")]
+    if len(items) > 1 and not all(items):
+        raise ParameterError(f"{where}: an empty item in {text!r}; expected AXIS:EFFECT,AXIS:EFFECT,...")
+    return [s for s in items if s]
 
 
 def model_from_description(desc, *, where: str = "model description") -> HeliModel:
@@ -136,8 +170,11 @@ def model_from_description(desc, *, where: str = "model description") -> HeliMod
     effects = desc.get("effects", [])
     if not isinstance(effects, list):
         raise ParameterError(f"{where}: 'effects' must be a list, found {effects!r}")
+    linear_torque = desc.get("linear_torque", True)
+    if not isinstance(linear_torque, bool):
+        raise ParameterError(f"{where}: 'linear_torque' must be true or false, found {linear_torque!r}")
     return build_model(effects, mechanics=desc.get("mechanics", "closed_form"),
-                       linear_torque=bool(desc.get("linear_torque", True)), where=where)  # fmt: skip
+                       linear_torque=linear_torque, where=where)  # fmt: skip
 
 
 def load_model_file(path: str | os.PathLike) -> HeliModel:

@@ -70,6 +70,9 @@ def load_params_json(path: str | os.PathLike, model=None, *, complete: bool = Tr
     model = HeliModel() if model is None else model
     path = os.fspath(path)
     raw = read_json_object(path, "parameter")
+    for name, value in raw.items():  # a file holds one number per name, not a batch
+        if isinstance(value, (list, dict)):
+            raise ParameterError(f"{path}: parameter {name!r}: expected a number, found {value!r}")
     full = model.complete(raw, where=path)
     return {k: float(v) for k, v in full.items() if complete or k in raw}
 

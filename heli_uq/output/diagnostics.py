@@ -3,7 +3,9 @@
 Only reads the package's InferenceData (:mod:`heli_uq.output.inference_data`); never runs
 inference.
 Conventions (Vehtari et al. 2021): rank-normalised split R-hat <= 1.01, bulk and tail
-ESS >= 400, no divergences after warm-up, E-BFMI >= 0.3.  For emcee, R-hat and ESS are
+ESS >= 400, no divergences after warm-up, E-BFMI >= 0.3.  One chain's R-hat is that of
+its two halves (arviz has none for one chain).  Draws too few to measure R-hat or ESS
+(arviz's NaN) fail the health check (:mod:`heli_uq.output.health`).  For emcee, R-hat and ESS are
 computed across *independent ensembles* (each ensemble is one "chain"), never across
 walkers of one ensemble, which are not independent; the integrated autocorrelation
 time and acceptance per ensemble are reported as well.
@@ -11,11 +13,14 @@ time and acceptance per ensemble are reported as well.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import warnings
 
 import arviz as az
 import numpy as np
+import xarray as xr
 
 from heli_uq.output.divergences import divergence_sites
 from heli_uq.output.network import is_network_weight
@@ -36,6 +41,22 @@ ESS_MIN = 400
 BFMI_MIN = 0.3
 
 
+@contextlib.contextmanager
+def _quiet_arviz():
+    """arviz's summaries without their noise: the RuntimeWarnings of stuck chains (it divides
+    by zero; R-hat is inf) and its log line for draws too few to measure (NaN), both of
+    which the health checks report in their own words."""
+    logger = getattr(az, "_log", None) or logging.getLogger("arviz")  # arviz's own, unregistered
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            yield
+    finally:
+        logger.setLevel(level)
+
+
 def _diagnostic_vars(idata, weights: bool = False) -> list[str]:
     """Posterior variables whose R-hat/ESS judge convergence: every quantity except the
     sampling coordinates ``z`` and the raw network weights (their sign and permutation
@@ -52,28 +73,44 @@ def _worst(column, pick):
     return str(values.idxmax() if pick is max else values.idxmin())
 
 
+def _rhat(post, summ):
+    """R-hat per variable of the Dataset ``post``: arviz's (``summ``, its diagnostics) for
+    several chains; for one chain, for which arviz gives NaN, that of its first and second
+    halves as two chains (arviz splits each again), so a drift along the chain still shows
+    (NaN below 8 draws)."""
+    return summ["r_hat"] if post.sizes["chain"] > 1 else _halves_rhat(post)
+
+
+def _halves_rhat(post):
+    half = post.sizes["draw"] // 2
+    first = post.isel(draw=slice(0, half))
+    second = post.isel(draw=slice(half, 2 * half)).assign_coords(draw=first["draw"])
+    halves = az.convert_to_inference_data(
+        xr.concat([first, second], dim="chain").assign_coords(chain=[0, 1]))
+    with _quiet_arviz():
+        return az.summary(halves, kind="diagnostics")["r_hat"]
+
+
 def convergence(idata) -> dict:
     """R-hat, ESS, divergences, tree depth, BFMI (NUTS) or acceptance and tau (emcee)."""
     names = _diagnostic_vars(idata)
-    with warnings.catch_warnings():  # stuck chains: arviz divides by zero, R-hat is inf
-        warnings.simplefilter("ignore", RuntimeWarning)
+    with _quiet_arviz():
         summ = az.summary(idata, var_names=names, kind="diagnostics")
+    rhat = _rhat(idata.posterior[names], summ)
     info = json.loads(idata.posterior.attrs.get("sampler_info", "{}"))
     out = {
         "sampler": info.get("sampler"),
         "chains": int(idata.posterior.sizes["chain"]),
         "draws": int(idata.posterior.sizes["draw"]),
-        "rhat_max": float(summ["r_hat"].max()),
+        "rhat_max": float(rhat.max()),
         "ess_bulk_min": float(summ["ess_bulk"].min()),
         "ess_tail_min": float(summ["ess_tail"].min()),
-        # R-hat needs >= 2 chains; with one chain arviz gives NaN and we report null.
-        "worst_rhat_variable": _worst(summ["r_hat"], max),
+        "worst_rhat_variable": _worst(rhat, max),
         "worst_ess_variable": _worst(summ["ess_bulk"], min),
     }
     weights = _diagnostic_vars(idata, weights=True)
     if weights:  # reported, not judged (see _diagnostic_vars)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
+        with _quiet_arviz():
             rw = az.summary(idata, var_names=weights, kind="diagnostics")["r_hat"]
         out["rhat_max_network_weights"] = float(rw.max())
         torques = [v for v in names if v.startswith("nn_torque_")]
@@ -85,8 +122,8 @@ def convergence(idata) -> dict:
                 "adapt_mass_matrix", "solver_edge"):
         if key in info:
             out[key] = info[key]
-    stats = idata.sample_stats
-    if "diverging" in stats:
+    stats = getattr(idata, "sample_stats", None)
+    if stats is not None and "diverging" in stats:
         out["divergences"] = int(stats["diverging"].sum())
         sites = divergence_sites(idata)
         if sites:  # by chain and by position: where to look (divergences.py)
@@ -123,10 +160,9 @@ def draws_converged(samples: dict) -> bool:
     """
     names = [k for k in samples if k != "z" and not is_network_weight(k)]
     posterior = az.convert_to_dataset({k: np.asarray(samples[k]) for k in names})
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
+    with _quiet_arviz():
         summ = az.summary(posterior, kind="diagnostics")
-    return bool(summ["r_hat"].max() <= RHAT_MAX and summ["ess_bulk"].min() >= ESS_MIN
+    return bool(_rhat(posterior, summ).max() <= RHAT_MAX and summ["ess_bulk"].min() >= ESS_MIN
                 and summ["ess_tail"].min() >= ESS_MIN)  # fmt: skip
 
 
@@ -140,8 +176,7 @@ def summary_table(idata):
     scale M11, drawn from its conditional prior, and ``scale_noise``, the standard normal
     draw behind it)."""
     names = [v for v in _diagnostic_vars(idata) if v not in INTERNAL_SITES]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
+    with _quiet_arviz():
         return az.summary(idata, var_names=names, round_to="none")
 
 

@@ -46,7 +46,7 @@ from heli_uq.simulation.stiffness import edge_text
 
 __all__ = ["check_health", "format_warnings", "TREE_DEPTH_SATURATION_MAX", "STEP_SIZE_MIN",
            "STEP_SIZE_RATIO_MIN", "MAP_DECREMENT_MAX", "MAP_STARTS_ONLY", "UNCONVERGED",
-           "COVERAGE90_RANGE", "START_PRIOR_SDS", "UNPHYSICAL"]  # fmt: skip
+           "COVERAGE90_RANGE", "START_PRIOR_SDS", "UNPHYSICAL", "MIN_DRAWS_MEASURED"]  # fmt: skip
 
 #: Largest fraction of draws at the tree-depth limit: more means the trajectories are cut
 #: short (a collapsed step size or a ridge), and the chain explores by a random walk.
@@ -76,19 +76,37 @@ COVERAGE90_RANGE = (0.80, 0.97)
 #: mechanistic model on the rig record puts ``psi0`` 7 sd away, because it cannot hold the
 #: still yaw of the first 17 s and the likelihood draws a line through it.
 START_PRIOR_SDS = 4.0
+#: Fewest draws per chain from which arviz measures R-hat and ESS (it gives NaN below).
+MIN_DRAWS_MEASURED = 4
 UNCONVERGED = "UNCONVERGED"
 UNPHYSICAL = "unphysical"
 
 
 def _bad(value, limit, above: bool) -> bool:
-    """``value`` beyond ``limit`` (None and NaN are not measured: not a failure)."""
+    """``value`` beyond ``limit`` (None and NaN are not measured: not a failure here;
+    :func:`_unmeasured` fails a NaN R-hat or ESS)."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return False
     return value > limit if above else value < limit
 
 
+def _unmeasured(s: dict) -> list[str]:
+    """R-hat or ESS that the draws were too few to measure (arviz gives NaN below
+    :data:`MIN_DRAWS_MEASURED` draws per chain): such a run is not shown to converge, so it
+    fails; ``None`` (a summary without these keys) is not judged."""
+    nan = [label for key, label in (("rhat_max", "R-hat"), ("ess_bulk_min", "bulk ESS"),
+                                    ("ess_tail_min", "tail ESS"))
+           if isinstance(s.get(key), float) and math.isnan(s[key])]  # fmt: skip
+    if not nan:
+        return []
+    names = nan[0] if len(nan) == 1 else f"{', '.join(nan[:-1])} and {nan[-1]}"
+    return [f"{names} cannot be measured from {s.get('chains', '?')} chain(s) of "
+            f"{s.get('draws', '?')} draws (at least {MIN_DRAWS_MEASURED} draws per chain are "
+            f"needed, {2 * MIN_DRAWS_MEASURED} for one chain): convergence is not shown"]
+
+
 def _sampler_warnings(s: dict) -> list[str]:
-    out = []
+    out = _unmeasured(s)
     if _bad(s.get("rhat_max"), RHAT_MAX, True):
         out.append(f"R-hat {s['rhat_max']:.3g} > {RHAT_MAX} (worst: {s.get('worst_rhat_variable')}): "
                    "the chains disagree")  # fmt: skip
@@ -153,7 +171,9 @@ def _physical_warnings(s: dict, solver_tol: float | None) -> list[str]:
     return out
 
 
-def _coverage_notes(s: dict) -> list[str]:
+def _coverage_notes(s: dict, converged: bool) -> list[str]:
+    """A note per window and angle whose coverage is outside :data:`COVERAGE90_RANGE`; a
+    low one is called model error only when the sampler's checks passed."""
     lo, hi = COVERAGE90_RANGE
     out = []
     for window, checks in (s.get("windows") or {}).items():
@@ -162,9 +182,10 @@ def _coverage_notes(s: dict) -> list[str]:
                 continue
             where = f"the {window} window's {angle}" + (f" ({checks['n_samples']} samples)"
                                                         if "n_samples" in checks else "")
-            why = ("the model misses the data there by more than its posterior and noise allow: "
+            why = ("the band is wider than the data need" if cov > hi else
+                   "the model misses the data there by more than its posterior and noise allow: "
                    "model error, not a sampler fault (`heli-uq discover` looks for the missing effect)"
-                   if cov < lo else "the band is wider than the data need")  # fmt: skip
+                   if converged else "not judged: the run failed its convergence checks")  # fmt: skip
             out.append(f"the 90 % band covers {100 * cov:.0f} % of {where}, outside "
                        f"{100 * lo:.0f}-{100 * hi:.0f} %: {why}")  # fmt: skip
     return out
@@ -218,7 +239,7 @@ def check_health(summary: dict, *, solver_tol: float | None = None) -> dict:
     if cut_from is not None:
         notes.append(f"its warm-up was cut from {cut_from} to {summary.get('warmup')} iterations, step size "
                      "only, to leave time for its draws before the time limit")  # fmt: skip
-    notes.extend(_coverage_notes(summary))
+    notes.extend(_coverage_notes(summary, converged=not sampler))
     notes.extend(_start_notes(summary))
     notes.extend(_edge_notes(summary))
     return {"ok": not flags, "flags": flags, "warnings": sampler + physical, "notes": notes}

@@ -58,6 +58,7 @@ from heli_uq.output.network import UNSEEN, network_torques
 from heli_uq.probability.likelihood import pointwise_log_likelihood
 from heli_uq.probability.noise import ar1_noise
 from heli_uq.probability.priors import NOISE_KINDS, OUTPUTS
+from heli_uq.probability.problem import training_data
 
 __all__ = ["to_inference_data", "save_netcdf", "load_posterior", "OUTPUTS", "simulate_draws"]
 
@@ -238,6 +239,7 @@ def to_inference_data(run, *, prior_draws: int = 500, seed: int = 0, pp_draws: i
         "coordinates_strategy": problem.coords.resolved,
         "unidentified_coordinates": ",".join(problem.coords.unidentified),
         "free_parameters": ",".join(problem.coords.free),
+        **training_data(problem),  # the data it saw: a report on other data is refused
     })  # fmt: skip
     return idata
 

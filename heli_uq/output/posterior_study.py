@@ -273,6 +273,8 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
         run = run_emcee(problem, out, ensembles=ensembles or chains, walkers=walkers,
                         steps=warmup + draws, burn=warmup, seed=seed, resume=resume,
                         progress=progress, start=start)  # fmt: skip
+    if resume:  # the resumed run's own MAP: the directory's map.json may be another run's
+        atomic_write_text(out / MAP_FILE, json.dumps(run.info["map_parameters"], indent=1))
     stage("posterior-predictive simulations and diagnostics")
     idata = to_inference_data(run, seed=seed)
     problem = run.problem

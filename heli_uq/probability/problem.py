@@ -21,7 +21,7 @@ from heli_uq.probability.priors import PriorSet, RecordStart
 from heli_uq.simulation.solver import solve
 from heli_uq.simulation.stiffness import default_substeps
 
-__all__ = ["Problem", "check_split", "make_problem", "fingerprint"]
+__all__ = ["Problem", "check_split", "make_problem", "fingerprint", "data_sha256", "training_data"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -202,18 +202,33 @@ def make_problem(record: Experiment, train=None, test=None, *, model: HeliModel 
                    source=str(record.source))  # fmt: skip
 
 
+def data_sha256(u, y, t) -> str:
+    """sha256 of a record's voltages ``u`` (N, 2), angles ``y`` (N, 2) and times ``t``
+    (N,), as float64: the identity of the data a posterior was computed from."""
+    digest = hashlib.sha256()
+    for arr in (u, y, t):
+        digest.update(np.ascontiguousarray(arr, dtype=np.float64).tobytes())
+    return digest.hexdigest()
+
+
+def training_data(problem: Problem) -> dict:
+    """``{"train_s": "[a, b]", "train_sha256": ...}``: the window the likelihood scores [s]
+    (JSON) and :func:`data_sha256` of its samples, the attributes by which ``posterior.nc``
+    names its data (:func:`heli_uq.identifiability.report.check_posterior_data`)."""
+    n = problem.n_train
+    return {"train_s": json.dumps(fingerprint(problem)["train_s"]),
+            "train_sha256": data_sha256(*(np.asarray(a)[:n] for a in (problem.u, problem.y, problem.t)))}
+
+
 def fingerprint(problem: Problem) -> dict:
     """What determines a problem's posterior, as JSON-able values: a sha256 of the record's
     arrays, the windows (sample indices and seconds, ``[start, stop)``), the model
     description, the priors, the error model, the coordinates and the substeps.  Samplers
     store it to refuse resuming another problem."""
-    digest = hashlib.sha256()
-    for arr in (problem.u, problem.y, problem.t):
-        digest.update(np.ascontiguousarray(arr, dtype=np.float64).tobytes())
     t0, dt = float(problem.t[0]), float(problem.dt)
     train = [t0, t0 + problem.n_train * dt]
     test = None if problem.test is None else [t0 + problem.test[0] * dt, t0 + problem.test[1] * dt]
-    return {"data_sha256": digest.hexdigest(), "dt": dt, "n_train": problem.n_train,
+    return {"data_sha256": data_sha256(problem.u, problem.y, problem.t), "dt": dt, "n_train": problem.n_train,
             "train_s": [round(v, 9) for v in train],
             "test_s": None if test is None else [round(v, 9) for v in test],
             "test": None if problem.test is None else list(problem.test),

@@ -98,6 +98,9 @@ def _start_weights(hidden: int, n_in: int) -> np.ndarray:
 #: and a 4-unit one does not (R-hat 1.07 after 58 min, 242 steps per draw, 90 % of draws at
 #: the tree depth); the 2-unit posterior also predicts the test window better (README).
 DEFAULT_HIDDEN = 2
+#: Most hidden units a network may have: each is ~4-8 parameters of a posterior over a
+#: record of ~13,000 samples; 2000 units took 24 s to set up a simulation, 100,000 hung.
+MAX_HIDDEN = 1024
 
 
 class NeuralTorque(AbstractEffect, AbstractTorque):
@@ -143,8 +146,9 @@ class NeuralTorque(AbstractEffect, AbstractTorque):
         if self.project not in PROJECTIONS:
             raise ParameterError(f"neural_torque: project must be one of {', '.join(PROJECTIONS)}, "
                                  f"found {self.project!r}")  # fmt: skip
-        if isinstance(self.hidden, bool) or not isinstance(self.hidden, int) or self.hidden < 1:
-            raise ParameterError(f"neural_torque: hidden must be a positive integer, "
+        hidden = self.hidden
+        if isinstance(hidden, bool) or not isinstance(hidden, int) or not 1 <= hidden <= MAX_HIDDEN:
+            raise ParameterError(f"neural_torque: hidden must be an integer in 1..{MAX_HIDDEN}, "
                                  f"found {self.hidden!r}")  # fmt: skip
         n = len(NN_INPUTS[self.inputs])
         for name in ("center", "scale"):

@@ -582,6 +582,16 @@ def test_unconverged_run_warns_strict_fails_and_resume_checks_its_manifest(tmp_p
     assert health["ok"] is False and "UNCONVERGED" in health["flags"] and health["warnings"]
     manifest = json.loads((out / "chunks" / "manifest.json").read_text())
     assert manifest["seed"] == 0 and manifest["warmup"] == 5 and manifest["versions"]["jax"]
+    # posterior.nc names its data: a report on this record passes, on another is refused
+    import arviz as az
+
+    from heli_uq.data import read_record
+    from heli_uq.identifiability.report import check_posterior_data
+
+    posterior = az.from_netcdf(out / "posterior.nc").posterior
+    check_posterior_data(posterior, read_record(rec))
+    with pytest.raises(ParameterError, match="sampled on 0-1 s of .*rec.csv, and this record.s samples"):
+        check_posterior_data(posterior, synthetic_experiment(duration=1.0, seed=5))
 
     fitted = (out / "map.json").read_text()
     (out / "map.json").write_text('{"m": 123.0}')  # as another run into this directory leaves it

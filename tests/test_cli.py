@@ -233,6 +233,15 @@ def test_out_is_a_file(tmp_path, capsys):
     assert_one_line_error(err, str(blocker))
 
 
+@pytest.mark.parametrize("taken", ["simulation.csv", "simulation.png"])
+def test_an_output_path_that_is_a_directory_leaves_no_partial_output(tmp_path, capsys, taken):
+    (tmp_path / taken).mkdir()
+    code, _, err = run(capsys, "simulate", "--inputs", "table3", "--t-end", "0.1", "--out", str(tmp_path))
+    assert code == 2
+    assert_one_line_error(err, f"{tmp_path / taken}: a directory where the output file goes")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [taken]
+
+
 def test_usage_errors_exit_2_in_one_line(capsys):
     for argv in ([], ["simulate", "--inputs", "table3"], ["frobnicate"], ["data"],
                  ["sample", "--seed", "1.5", "--out", "o"]):  # fmt: skip
@@ -556,9 +565,10 @@ def test_simulate_with_effects_and_model_file(tmp_path, capsys, small_record):
         (["--prior", "F_c_yaw=halfnormal:0.01"], ["unknown name 'F_c_yaw'"]),
         (["--prior", "m=lognormal:-1:1"], ["m", "median > 0"]),
         (["--effects", "yaw:deadband", "--model-file", "MODEL"], ["one of them"]),
+        (["--effects", "yaw:deadband,yaw:deadband"], ["--effects: deadband(yaw) and deadband(yaw) both"]),
     ],
     ids=["effect", "axis", "form", "model-file", "prior-support", "fix-support", "prior-name",
-         "prior-value", "both"],
+         "prior-value", "both", "twice"],
 )  # fmt: skip
 def test_bad_models_and_priors_are_one_line(tmp_path, capsys, small_record, argv, needles):
     model_file = tmp_path / "m.json"

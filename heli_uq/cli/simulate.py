@@ -149,6 +149,9 @@ def simulate_to_files(out: Path, params: dict, x0, u, dt: float, *, model=None, 
     ys = np.asarray(sol.ys, dtype=float)
     unphysical = physical_range(ys).describe(ts)
     p = momenta(params, ys)
+    for name in ("simulation.csv", "simulation.png"):  # both or neither: no partial output
+        if (out / name).is_dir():
+            raise ParameterError(f"{out / name}: a directory where the output file goes; give another --out")
     csv_path = _write_csv_atomic(out / "simulation.csv", SIMULATION_COLUMNS,
                                  np.column_stack([ts, ys, p]))  # fmt: skip
     source = "Table 3 (zero voltages)" if record is None else Path(record.source).name

@@ -112,7 +112,10 @@ def build_model(effects=(), *, mechanics: str = "closed_form", linear_torque: bo
     base = (LinearTorque(),) if linear_torque else ()
     if not base + torques:
         raise ParameterError(f"{where}: the model needs at least one torque term")
-    return HeliModel(_MECHANICS[mechanics](), inputs, base + torques)
+    try:
+        return HeliModel(_MECHANICS[mechanics](), inputs, base + torques)
+    except ParameterError as err:  # e.g. an effect twice: said for the option that gave it
+        raise ParameterError(f"{where}: {str(err).removeprefix('model: ')}") from None
 
 
 #: Options of a stored term that were derived from its record (a network's input scaling and

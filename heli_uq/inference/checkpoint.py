@@ -95,9 +95,9 @@ class Checkpoint:
             If there is no saved run to resume, or the saved run's manifest differs
             (one line naming each differing setting with its saved and new value).
         """
-        self.manifest()  # a damaged one is said as such (ParameterError)
+        saved = self.manifest()  # a damaged one is said as such (ParameterError)
         why = self.obstacle(manifest)
-        if why is not None and self.manifest() is not None and (self.directory / _START).exists():
+        if why is not None and saved is not None and (self.directory / _START).exists():
             raise ParameterError(f"resume: the run in {self.directory} was made with {why}; give the "
                                  "same settings, or start again without resuming")  # fmt: skip
         if why is not None:

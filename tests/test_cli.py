@@ -224,6 +224,25 @@ def test_diverging_parameters_exit_1(tmp_path, capsys):
     assert not (tmp_path / "out" / "simulation.csv").exists()
 
 
+@pytest.mark.parametrize(("values", "count"), [({"D_psi": 1e300}, "e+300 substeps"),
+                                               ({"J_s": 1e-300, "J_bc": 1e-300}, None)])
+def test_absurd_parameters_exit_1_in_one_readable_line(tmp_path, capsys, values, count):
+    """A parameter file of absurd values diverges in one line: no numpy ``RuntimeWarning``
+    from the stiffness estimate (a rate x/0 is left out), and a substep count of hundreds
+    of digits is written as a number a person reads."""
+    params = tmp_path / "absurd.json"
+    params.write_text(json.dumps(values))
+    code, _, err = run(capsys, "simulate", "--inputs", "table3", "--params", str(params),
+                       "--out", str(tmp_path / "out"))
+    assert code == 1
+    assert "Traceback" not in err and "RuntimeWarning" not in err
+    (line,) = err.strip().splitlines()
+    assert line.startswith("heli-uq: simulation diverged") and "absurd.json" in line
+    assert max(len(word) for word in line.split()) < 60  # was a 301-digit count
+    if count is not None:
+        assert count in line
+
+
 def test_out_is_a_file(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("x")
@@ -375,6 +394,12 @@ def test_simulate_record_rejects_dt_and_long_t_end(tmp_path, capsys, small_recor
                        "--out", str(tmp_path))
     assert code == 2
     assert_one_line_error(err, "--t-end", "small.csv")
+    # a window of one sample (t < 0.02 s at dt = 0.02 s) is refused as table3's is
+    code, _, err = run(capsys, "simulate", "--inputs", str(small_record), "--t-end", "0.02",
+                       "--out", str(tmp_path / "one"))
+    assert code == 2
+    assert_one_line_error(err, "--t-end", "fewer than 2 samples")
+    assert not (tmp_path / "one" / "simulation.csv").exists()
 
 
 def test_simulate_bad_record(tmp_path, capsys):

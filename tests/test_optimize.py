@@ -457,7 +457,7 @@ def test_a_warm_start_with_an_effect_at_its_no_effect_default_is_used(tmp_path):
     import math
 
     from heli_uq.inference.density import log_density_setup
-    from heli_uq.inference.start import map_starts, startable
+    from heli_uq.inference.multistart import map_starts, startable
     from heli_uq.model import RIG_FIT, RIG_FIT_X0, build_model, load_params_json
     from heli_uq.probability import make_problem
     from heli_uq.simulation import synthetic_experiment
@@ -598,7 +598,7 @@ def test_a_start_from_a_fit_is_fitted_once_from_its_state_with_its_own_scales(mo
     second time: the scales do not move.  Without ``from_fit`` the same guess is fitted
     twice, from the priors' initial state, first with ``LSQ_SIGMA``.  (The second pass was
     47 s of a 93 s nested fallback at 11 substeps, 2026-12-06.)"""
-    import heli_uq.inference.start as start_module
+    import heli_uq.inference.multistart as start_module
     from heli_uq.inference.density import log_density_setup
     from heli_uq.inference.least_squares import LSQ_SIGMA, x0_guess
     from heli_uq.model import RIG_FIT, RIG_FIT_X0, X0_NAMES

@@ -109,6 +109,9 @@ def _simulation_inputs(args):
                 f"which covers {record.duration:g} s"
             )
         record = record.window(float(record.t[0]), float(record.t[0]) + t_end)
+        if record.t.size < 2:  # as for table3: one sample is no simulation
+            raise ParameterError(f"--t-end {t_end:g} s of {record.source} (sample time {record.dt:g} s; "
+                                 f"a record is truncated to t < S) gives fewer than 2 samples")  # fmt: skip
     if args.x0 is None:
         x0 = (float(record.y[0, 0]), float(record.y[0, 1]), 0.0, 0.0)
     else:
@@ -129,7 +132,7 @@ def simulate_to_files(out: Path, params: dict, x0, u, dt: float, *, model=None, 
     from heli_uq.probability.likelihood import loss_v
     from heli_uq.simulation.physical import physical_range
     from heli_uq.simulation.solver import RESULTS, solve
-    from heli_uq.simulation.stiffness import MAX_SUBSTEPS, capped_substeps, default_substeps
+    from heli_uq.simulation.stiffness import MAX_SUBSTEPS, capped_substeps, count_text, default_substeps
 
     model = HeliModel() if model is None else model
     params = {k: float(v) for k, v in model.complete(params).items()}
@@ -138,7 +141,7 @@ def simulate_to_files(out: Path, params: dict, x0, u, dt: float, *, model=None, 
     sol = solve(params, x0, u, dt, model=model, substeps=substeps)
     if not bool(sol.ok):
         kind = "non-finite states" if int(sol.result) == RESULTS.nonfinite else "blow-up"
-        stiff = (f"; the model is too stiff for the solver: {need} substeps per sample needed, "
+        stiff = (f"; the model is too stiff for the solver: {count_text(need)} substeps per sample needed, "
                  f"{MAX_SUBSTEPS} at most") if need > MAX_SUBSTEPS else ""  # fmt: skip
         return 1, (f"simulation diverged for these parameters ({kind}; parameters {params_label}, "
                    f"x0={tuple(float(v) for v in x0)}{stiff}); nothing written")  # fmt: skip

@@ -18,6 +18,7 @@ from heli_uq.inference.manifest import run_manifest as run_manifest
 from heli_uq.inference.map import MapResult as MapResult
 from heli_uq.inference.map import find_map as find_map
 from heli_uq.inference.map import laplace as laplace
+from heli_uq.inference.multistart import start_parameters as start_parameters
 from heli_uq.inference.nuts import TARGET_ACCEPT as TARGET_ACCEPT
 from heli_uq.inference.nuts import resume_obstacle as resume_obstacle
 from heli_uq.inference.nuts import run_nuts as run_nuts
@@ -25,7 +26,6 @@ from heli_uq.inference.sampler_run import SamplerRun as SamplerRun
 from heli_uq.inference.settle import settle_edge as settle_edge
 from heli_uq.inference.start import Start as Start
 from heli_uq.inference.start import prepare_start as prepare_start
-from heli_uq.inference.start import start_parameters as start_parameters
 from heli_uq.inference.train import Training as Training
 from heli_uq.inference.train import train as train
 

@@ -7,7 +7,7 @@ parameters in a few steps, where a quasi-Newton method on the full posterior sta
 :func:`grid_start` screens the values a model's terms declare as separating the basins of
 a fit (:meth:`heli_uq.model.HeliModel.start_grid`, e.g. a dead band's width between two
 voltage levels) and gives one more start where a local fit would not go.  Both serve
-:func:`heli_uq.inference.start.map_starts`.
+:func:`heli_uq.inference.multistart.map_starts`.
 """
 
 from __future__ import annotations

@@ -298,13 +298,17 @@ class HeliModel(eqx.Module):
         add to every axis, for one point's solve.
         """
         p = {k: np.asarray(v, dtype=float) for k, v in p.items()}
-        inertia = self.mechanics.inertia_bounds(p, thetas)
         per_axis: dict = {}
-        for term in self.terms:
-            rate = np.asarray(term.stiffness(p, inertia), dtype=float)
-            axis = getattr(term, "axis", None)
-            per_axis[axis] = per_axis.get(axis, 0.0) + np.where(np.isfinite(rate), rate, 0.0)
-        shared = sum(np.asarray(t.decay_rate(p, inertia), dtype=float) for t in self.terms) if decay else 0.0
+        # an extreme value (an inertia of 1e-300, a mass of 1e200) makes a rate 0/0 or x/0:
+        # that rate is left out, and numpy's warnings say nothing more
+        with np.errstate(all="ignore"):
+            inertia = self.mechanics.inertia_bounds(p, thetas)
+            for term in self.terms:
+                rate = np.asarray(term.stiffness(p, inertia), dtype=float)
+                axis = getattr(term, "axis", None)
+                per_axis[axis] = per_axis.get(axis, 0.0) + np.where(np.isfinite(rate), rate, 0.0)
+            shared = (sum(np.asarray(t.decay_rate(p, inertia), dtype=float) for t in self.terms)
+                      if decay else 0.0)  # fmt: skip
         shared = np.where(np.isfinite(shared), shared, 0.0)
         shape = np.broadcast_shapes(*(np.shape(v) for v in p.values()))
         sums = (np.broadcast_to(r + shared, shape) for r in per_axis.values())

@@ -27,8 +27,8 @@ import numpy as np
 from heli_uq.model.heli_model import HeliModel
 
 __all__ = ["RK4_STABILITY", "STABLE_STEP", "MAX_SUBSTEPS", "EDGE_FRACTION", "default_substeps",
-           "capped_substeps", "damping_edge", "edge_text", "stiffness_rates", "substeps_covering",
-           "stiffness_check"]  # fmt: skip
+           "capped_substeps", "count_text", "damping_edge", "edge_text", "stiffness_rates",
+           "substeps_covering", "stiffness_check"]  # fmt: skip
 
 #: RK4's stability limit on a decaying real mode: ``|r h|`` below 2.785.
 RK4_STABILITY = 2.785
@@ -50,12 +50,18 @@ EDGE_FRACTION = 0.9
 SMOOTHER_FRICTION = "for a sharp friction consider a smoother one (a larger omega_s)"
 
 
+def count_text(need: int) -> str:
+    """A substep count as a person reads it: exact up to a million, else ``2.9e+300``
+    (the count of an absurd parameter value has hundreds of digits)."""
+    return str(need) if need <= 1_000_000 else f"{float(need):.1e}"
+
+
 def capped_substeps(need: int, what: str, hint: str = SMOOTHER_FRICTION, cap: int = MAX_SUBSTEPS) -> int:
     """``min(need, cap)``, with a warning naming ``what`` (e.g. ``"the MAP"``) and ending
     with ``hint`` when the cap (default :data:`MAX_SUBSTEPS`) is reached."""
     if need > cap:
         logging.getLogger(__name__).warning(
-            f"{what} needs {need} solver substeps per sample for its stiffest mode; using "
+            f"{what} needs {count_text(need)} solver substeps per sample for its stiffest mode; using "
             f"{cap}{' (MAX_SUBSTEPS)' if cap == MAX_SUBSTEPS else ''}: the simulation may be "
             f"inaccurate or diverge; {hint}")  # fmt: skip
     return min(need, cap)
@@ -83,11 +89,12 @@ def damping_edge(model: HeliModel, params: Mapping, dt: float, substeps: int, *,
         ``rate * dt / substeps`` exceeds ``EDGE_FRACTION * RK4_STABILITY``; else None.
     """
     p = model.complete(params)
-    inertia = model.mechanics.inertia_bounds(p, thetas)
     rates: dict = {}
-    for term in model.terms:  # decays on one axis add
-        for axis, r in term.decay_rates(p, inertia).items():
-            rates[axis] = rates.get(axis, 0.0) + float(r)
+    with np.errstate(all="ignore"):  # an extreme value's x/0 gives a rate that is not an edge
+        inertia = model.mechanics.inertia_bounds(p, thetas)
+        for term in model.terms:  # decays on one axis add
+            for axis, r in term.decay_rates(p, inertia).items():
+                rates[axis] = rates.get(axis, 0.0) + float(r)
     if not rates:
         return None
     axis = max(rates, key=rates.get)

@@ -130,7 +130,7 @@ class AbstractTerm(eqx.Module):
 
         A term whose fit has a local optimum per interval of a parameter (a dead band's
         width between two voltage levels the record holds) declares one value in each, and
-        the MAP search screens them (:func:`heli_uq.inference.start.map_starts`).
+        the MAP search screens them (:func:`heli_uq.inference.multistart.map_starts`).
         """
         return {}
 

@@ -6,7 +6,7 @@ from the ones before it (``tests/test_layout.py`` checks this)::
     errors, io, figure      base utilities (provenance: which code made a result)
     data/                   rig records (Experiment, the published CSV, the real record)
     model/                  mechanics, torque terms, named effects, parameters, priors
-    model/terms/            one file per term (a new effect is one new file there)
+    model/terms/            one file per term (a new effect: one file there, one line in its __init__)
     simulation/             fixed-step RK4 with discrete adjoint, diffrax reference, synthetic records
     probability/            priors, sampling coordinates, error models, the likelihood, numpyro model
     inference/              MAP, Laplace, NUTS, emcee, checkpoints

@@ -313,10 +313,17 @@ def _hold(text: str) -> tuple[float, float]:
 
 
 def main(argv=None) -> int:
-    all_cases = ["none"] + [f"{a}:{k}" for a in AXES for k in EFFECTS]
+    # every effect of the vocabulary that HIDDEN gives a value on that axis (a new effect
+    # joins the default cases when its value is added there)
+    all_cases = ["none"] + [f"{a}:{k}" for a in AXES for k in EFFECTS if k in HIDDEN[a]]
 
     def case(text):  # "none", "axis:effect" or two of them joined by "+"
         parts = text.split("+")
+        lacking = [x for x in parts if x.count(":") == 1 and x.split(":")[0] in HIDDEN
+                   and x.split(":")[1] in EFFECTS and x.split(":")[1] not in HIDDEN[x.split(":")[0]]]
+        if lacking:
+            raise argparse.ArgumentTypeError(f"{text!r}: no hidden value for {', '.join(lacking)}; "
+                                             "add one to HIDDEN in studies/discovery_confusion.py")
         known = set(parts) <= set(all_cases[1:]) | set(EXTRA_CASES) and len(set(parts)) == len(parts) <= 2
         if text != "none" and not known:
             raise argparse.ArgumentTypeError(f"{text!r}: expected none, axis:effect or two joined by +")

@@ -206,8 +206,9 @@ def main(argv=None) -> int:
     ap.add_argument("--axis", choices=AXES, default="yaw", help="axis of every effect (default yaw)")
     ap.add_argument("--seconds", type=float, default=None,
                     help="use the first SECONDS of the record [s] (default: all of it)")
-    ap.add_argument("--effects", default=",".join(EFFECTS),
-                    help="comma-separated effect names (default: all six)")
+    ap.add_argument("--effects", default=",".join(k for k in EFFECTS if k in EFFECT_VALUES),
+                    help="comma-separated effect names (default: every effect of the vocabulary "
+                         "with values in EFFECT_VALUES)")
     ap.add_argument("--substeps", default=",".join(map(str, SUBSTEPS)),
                     help="comma-separated substep counts (default 1,2,4,8,16)")
     ap.add_argument("--repeats", type=int, default=REPEATS, help="timed forward solves per count")
@@ -221,6 +222,10 @@ def main(argv=None) -> int:
     unknown = sorted(set(effects) - set(EFFECTS))
     if unknown:
         ap.error(f"--effects: unknown {', '.join(unknown)}; expected some of {', '.join(EFFECTS)}")
+    lacking = sorted(set(effects) - set(EFFECT_VALUES))
+    if lacking:
+        ap.error(f"--effects: no representative values for {', '.join(lacking)}; add them to "
+                 "EFFECT_VALUES in studies/substep_convergence.py")
     substeps = sorted({int(s) for s in args.substeps.split(",") if s.strip()})
 
     record = load_data(args.data)

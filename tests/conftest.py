@@ -60,6 +60,9 @@ def pytest_collection_modifyitems(config, items):
     tests kept in its order.  ``--dist loadgroup`` hands tests to the workers in
     collection order, so a long test collected last would run while the other worker sits
     idle; started first, the many short tests fill the end."""
+    for item in items:  # a long test is a slow one too (pyproject's markers): -m "not slow" drops it
+        if item.get_closest_marker("long") and not item.get_closest_marker("slow"):
+            item.add_marker(pytest.mark.slow)
     items.sort(key=lambda item: (item.get_closest_marker("slow") is None, -_expected_seconds(item)))
 
 

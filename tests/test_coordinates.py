@@ -22,6 +22,16 @@ EFFECT_VALUES = {"h": 0.005, "delta_pitch": 0.2, "F_c_yaw": 0.004, "c_yaw": 0.00
                  "psi_0_yaw": 0.8, "k_q_pitch": -0.01, "T_0_yaw": 0.002}  # fmt: skip
 
 
+def test_the_model_of_this_file_holds_every_effect_of_the_vocabulary():
+    """A new effect of the vocabulary joins :data:`EFFECTS` here, with values."""
+    from heli_uq.model.terms import EFFECTS as VOCABULARY
+
+    listed = {term.kind for term in EFFECTS.effects}
+    assert set(VOCABULARY) <= listed, f"add {sorted(set(VOCABULARY) - listed)} to EFFECTS"
+    names = {p.name for term in EFFECTS.effects for p in term.parameters()}
+    assert names <= set(EFFECT_VALUES), f"add {sorted(names - set(EFFECT_VALUES))} to EFFECT_VALUES"
+
+
 #: Mean voltages [V] of a rig-like record: the torque offset is sampled as the net
 #: constant yaw torque at them.
 U_REF = (1.3, 0.9)

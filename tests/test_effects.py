@@ -45,6 +45,18 @@ SOLVER_TOL = 1e-4
 EOM_AGREEMENT = 1e-10
 
 
+def test_the_tables_of_this_file_hold_every_effect_of_the_vocabulary():
+    """A new effect in ``EFFECTS`` must come with a value here and join the lists that run
+    every effect (README, "Adding a term"): without this check the lists left it out
+    silently and the value table failed with a bare ``KeyError``."""
+    kinds = set(EFFECTS)
+    missing = kinds - set(EFFECT_VALUES)
+    assert not missing, f"add a value per parameter of {sorted(missing)} to EFFECT_VALUES"
+    for name, table in (("ALL_EFFECTS", ALL_EFFECTS), ("PIPELINE_MODEL", PIPELINE_MODEL)):
+        listed = {item.split(":")[1] if isinstance(item, str) else item["effect"] for item in table}
+        assert kinds <= listed, f"add {sorted(kinds - listed)} to {name}"
+
+
 def _values(model: HeliModel) -> dict:
     out = dict(TABLE1)
     for term in model.effects:

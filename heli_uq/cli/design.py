@@ -110,9 +110,9 @@ def add_parser(subparsers):
     p.add_argument("--duration", default="60", metavar="S", help="experiment length [s] (default: 60)")
     p.add_argument("--dt", type=float, default=0.01, help="sample time [s] (default: 0.01)")
     p.add_argument("--u-theta", default="1.22:1.47", metavar="LO:HI",
-                   help="pitch voltage range [V] (default: the rig record's 1.22:1.47)")
+                   help="pitch voltage range [V] (default: about the rig record's levels, 1.21-1.47)")
     p.add_argument("--u-psi", default="0.45:1.6", metavar="LO:HI",
-                   help="yaw voltage range [V] (default: the rig record's 0.45:1.6)")
+                   help="yaw voltage range [V] (default: about the rig record's levels, 0.48-1.57)")
     p.add_argument("--segment", default="3:14", metavar="MIN:MAX",
                    help="segment lengths [s] (default: the rig record's 3:14)")
     p.add_argument("--pitch", default="-60:0", metavar="LO:HI",

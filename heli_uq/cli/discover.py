@@ -77,9 +77,11 @@ def add_parser(subparsers):
             "run again reuses the finished candidate fits and continues the refit's saved draws."
         ),
         epilog=(
-            "budgets: quick (2 MAP starts per candidate, NUTS 2 x (150 + 350) in the Laplace\n"
-            "  metric; 10 min target); full (4 starts, NUTS 4 x (1000 + 1000) with a dense mass\n"
-            "  matrix adapted, NUTS also for the base model; 60 min target). A NUTS run still\n"
+            "budgets: quick (the base model: the rig fit + 2 MAP starts; each candidate: its\n"
+            "  warm starts from the current fit; NUTS 2 x (150 + 350) in the Laplace metric; 10 min\n"
+            "  target); full (the base: the rig fit + 4 starts; each candidate: + 1 cold start;\n"
+            "  NUTS 4 x (1000 + 1000) with a dense mass matrix adapted, NUTS also for the base\n"
+            "  model; 60 min target). A NUTS run still\n"
             "  sampling at the target stops with the draws made (at least 100 per chain)\n\n"
             "examples:\n"
             "  heli-uq discover experimental --train 0:91 --test 91:131 --max-effects 2 --out out/disc\n"

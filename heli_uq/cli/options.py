@@ -27,32 +27,33 @@ class Formatter(argparse.RawDescriptionHelpFormatter):
     """Keep the line breaks of descriptions/epilogs (defaults are spelled out in each help)."""
 
 
+def _term_parameters(cls) -> str:
+    """``name [unit], ...`` of a term's parameters (bare names for an effect), or why they
+    cannot be listed: a term that cannot be built from its defaults breaks its own line of
+    the help, not every command (the contract: :class:`heli_uq.model.terms.AbstractEffect`)."""
+    try:
+        term = cls()
+        pars = term._declare() if hasattr(term, "_declare") else term.parameters()
+    except Exception as exc:  # a broken term must not break the CLI
+        return f"(cannot list its parameters: {type(exc).__name__}: {exc})"
+    if len(pars) > 4:  # a network's or a GP's many values: their count
+        return f"{len(pars)} parameters at its defaults"
+    return ", ".join(f"{p.name} [{p.unit}]" for p in pars)
+
+
 def _effects_help() -> str:
-    from heli_uq.model.terms import EFFECTS
+    """The effects vocabulary, then every other term, each with its parameters and
+    :attr:`~heli_uq.model.terms.AbstractEffect.summary`, from :data:`~heli_uq.model.terms.TERMS`."""
+    from heli_uq.model.terms import EFFECTS, TERMS
 
     lines = ["effects (AXIS:EFFECT, axes pitch and yaw; parameters named NAME_AXIS, e.g. F_c_yaw):"]
     for name, cls in EFFECTS.items():
-        pars = ", ".join(f"{p.name} [{p.unit}]" for p in cls()._declare())
-        lines.append(f"  {name:18s} {pars}")
-    lines.append("  stiction           breakaway friction above the sliding level: F_s [N m], fading "
-                 "over omega_b (option, 0.02 rad/s); with coulomb_friction the Stribeck law")
-    lines.append("  thrust_tilt        yaw only: the yaw torques K_psi_theta u_theta - K_psi_psi u_psi "
-                 "times (1 - a (1 - cos theta)); a [1] in [0, 2], 1 = the geometry's cos theta")
-    lines.append("  motor_lag          a motor's thrust lags its voltage: tau du'/dt = u - u', tau [s] "
-                 "(0 = none); the axis names the motor, as for deadband")
-    lines.append("  input_delay        a motor acts on its voltage late: u'(t) = u(t - d), d [s] "
-                 "(0 = none); the axis names the motor, as for deadband")
-    lines.append("  cross_damping      a torque of the other axis' rate: -D_x omega_other, D_x [N m s/rad] "
-                 "of either sign (0 = none)")
-    lines.append("  axis_tilt          yaw only: the yaw axis leans from the vertical by (b_c, b_s) [rad] "
-                 "towards psi = 0 and pi/2, so gravity turns the body in yaw (0 = level)")
-    lines.append("  neural_torque      hybrid model: a tanh network torque of the voltages (weights "
-                 "nn_W_*, nn_b_*, nn_w_* [N m]); options inputs (u | u,x,v) and hidden in a "
-                 "model file")
-    lines.append("  gp_torque          model discrepancy: a Gaussian-process torque of the voltages "
-                 "(gp_tau [N m]; gp_f_J [N m] at each voltage pair of the training window, "
-                 "gp_z_J whitened at the test window's new pairs); options length_scale [V], "
-                 "project and form (centred | whitened) in a model file")
+        lines.append(f"  {name:18s} {_term_parameters(cls)}: {cls.summary}")
+    lines.append("other terms (the same syntax; not discovery candidates unless given to "
+                 "--candidates):")
+    for name, cls in TERMS.items():
+        if name not in EFFECTS:
+            lines.append(f"  {name:18s} {_term_parameters(cls)}: {cls.summary}")
     return "\n".join(lines)
 
 

@@ -146,7 +146,8 @@ def add_parser(subparsers):
             "reported as UNPHYSICAL; failed health checks of the posterior as a warning\n"
             "block (see 'heli-uq sample --help').\n\n"
             "exit status: 0 ok, 1 the Table 1 simulation diverged, 2 bad input or a refused\n"
-            "--resume, 3 a failed health check under --strict, 130 interrupted"
+            "--resume, 3 a failed health check under --strict, 70 an internal error (a bug),\n"
+            "130 interrupted"
         ),
         formatter_class=Formatter,
     )

@@ -219,7 +219,8 @@ def add_parser(subparsers):
             "interrupt (Ctrl-C): stops within seconds, keeps the finished draws and prints the\n"
             "  command that continues them (--resume).\n"
             "exit status: 0 ok (health warnings only printed), 2 bad input or a refused\n"
-            "  --resume, 3 a failed health check under --strict, 130 interrupted\n\n"
+            "  --resume, 3 a failed health check under --strict, 70 an internal error (a bug),\n"
+            "  130 interrupted\n\n"
             + EFFECTS_HELP
         ),
         formatter_class=Formatter,

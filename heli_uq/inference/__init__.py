@@ -1,7 +1,8 @@
 """Inference: the log density, least squares and MAP, the Laplace approximation, NUTS and
 emcee, with chunked resumable output; point training of hybrid models (Adam, L-BFGS).
 
-Layer 5 (imports data, model, simulate and probability).
+Layer 5 (imports data, model, simulation, probability and the base modules, e.g.
+:mod:`heli_uq.provenance`).
 """
 
 from heli_uq.inference.checkpoint import Checkpoint as Checkpoint

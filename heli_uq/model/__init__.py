@@ -1,6 +1,6 @@
 """The model: rigid-body mechanics, torque terms, named effects and their parameters.
 
-Layer 2 (imports only :mod:`heli_uq.errors` and :mod:`heli_uq.io`).  A
+Layer 2 (imports :mod:`heli_uq.data` and the base modules).  A
 :class:`HeliModel` gathers the :class:`Parameter` declarations of its terms; the
 effects vocabulary is :data:`EFFECTS` (one file per effect in ``model/terms/``).
 """

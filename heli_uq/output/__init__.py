@@ -1,7 +1,7 @@
 """Output: InferenceData (NetCDF) with the model, diagnostics and health checks, figures,
 the posterior study and the prior predictive check.
 
-Layer 7 (imports everything below it; only discovery and the CLI import it).
+Layer 7 (imports everything below it; discovery, design and the CLI import it).
 """
 
 from heli_uq.output.diagnostics import convergence as convergence

@@ -258,8 +258,9 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
         stage(f"MAP done: -log p = {start.map_value:.6g}, Newton decrement "
               f"{start.map_decrement:.2g}, {start.problem.substeps} substeps")  # fmt: skip
         atomic_write_text(out / MAP_FILE, json.dumps(start.map_point()[0], indent=1))
-    stage(f"{sampler}: {chains} chains x ({warmup} + {draws})"
-          + (" (resumed from the saved chunks)" if resume else ""))  # fmt: skip
+    shape = (f"{chains} x {draws} independent draws of the Gaussian at the MAP" if sampler == "laplace"
+             else f"{chains} chains x ({warmup} + {draws})")  # (Laplace has no warm-up)
+    stage(f"{sampler}: {shape}" + (" (resumed from the saved chunks)" if resume else ""))
     if sampler == "nuts":
         left = None if time_limit is None else max(0.0, time_limit - (time.perf_counter() - t0))
         run = run_nuts(problem, out, **nuts_settings, resume=resume, progress=progress, start=start,

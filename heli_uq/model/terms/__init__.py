@@ -1,9 +1,11 @@
 """Model terms: the mechanics, the paper's linear torque, and the named effects.
 
 One file per term.  :data:`EFFECTS` is the effects vocabulary (names are part of the
-contract: ``--effects yaw:coulomb_friction`` and model files use them).  A new effect is
-one new file with one :class:`~heli_uq.model.terms.base.AbstractEffect` subclass plus one
-entry here.
+contract: ``--effects yaw:coulomb_friction`` and model files use them).  A new term is
+one new file with one :class:`~heli_uq.model.terms.base.AbstractEffect` subclass (its
+contract is in that class's docstring) plus its import here and one entry in
+:data:`TERMS`, or in :data:`EFFECTS` to make it a discovery candidate on both axes
+(README, "Adding a term").
 """
 
 from heli_uq.model.terms.axis_tilt import AxisTilt as AxisTilt

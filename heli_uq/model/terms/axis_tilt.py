@@ -52,6 +52,9 @@ class AxisTilt(AbstractEffect, AbstractTorque):
     ``axis`` must be ``"yaw"``."""
 
     kind: ClassVar[str] = "axis_tilt"
+    summary: ClassVar[str] = (
+        "yaw only: the yaw axis leans from the vertical by (b_c, b_s) towards psi = 0 and pi/2, so "
+        "gravity turns the body in yaw (0 = level)")
     input_only: ClassVar[bool] = False
     axis: str = eqx.field(static=True, default="yaw")
 

@@ -13,7 +13,8 @@ A model (:class:`~heli_uq.model.HeliModel`) is mechanics plus two stages of term
 
 Every term declares its parameters (:meth:`AbstractTerm.parameters`) and reads their
 values by name from the dict ``p`` it is called with, so adding an effect is one new
-file with one class.  All terms are equinox modules with static configuration, so a
+file with one class and one line that registers it (:mod:`heli_uq.model.terms`; the
+contract: :class:`AbstractEffect`).  All terms are equinox modules with static configuration, so a
 model is a pytree that ``jax.jit`` treats as a constant.
 """
 
@@ -238,9 +239,25 @@ class AbstractEffect(AbstractTerm):
 
     The parameters are named ``<bare>_<axis>`` (e.g. ``F_c_yaw``).  Subclasses define
     :attr:`kind`, :meth:`_declare` (parameters with bare names) and the physics.
+
+    The contract of a new effect (README, "Adding a term"; ``tests/test_terms_contract.py``
+    checks it for every registered term):
+
+    - every field has a default, so ``cls()`` builds it (the CLI lists each term's
+      parameters from ``cls()``; a model file gives only the options it changes);
+    - the first declared parameter is the effect's magnitude, and its default is "no
+      effect" (the torque is 0, the voltage map the identity): discovery's network
+      naming differentiates the torque by it, and ``simulate`` leaves a term it is not
+      given values for switched off;
+    - an effect of the vocabulary (``EFFECTS``) builds on both axes, since discovery
+      tries every candidate on each;
+    - :attr:`summary` is its line in ``heli-uq --help``'s effects list (the parameters
+      with their units are added to it).
     """
 
     axis: eqx.AbstractVar[str]
+    #: One line for the CLI's list of terms: the equation and what the term stands for.
+    summary: ClassVar[str] = ""
 
     def __check_init__(self):
         axis_index(self.axis)

@@ -50,6 +50,8 @@ class CoulombFriction(AbstractEffect, AbstractTorque):
     """``-F_c tanh(omega / omega_s)`` on ``axis`` (module docstring)."""
 
     kind: ClassVar[str] = "coulomb_friction"
+    summary: ClassVar[str] = (
+        "Coulomb friction -F_c tanh(omega / omega_s) on the axis (option omega_s, 0.002 rad/s)")
     input_only: ClassVar[bool] = False
     holds_still: ClassVar[bool] = True
     axis: str = eqx.field(static=True, default="yaw")

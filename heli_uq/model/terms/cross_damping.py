@@ -28,6 +28,8 @@ class CrossDamping(AbstractEffect, AbstractTorque):
     """``-D_x omega_other`` on ``axis``, ``omega_other`` the other axis' rate."""
 
     kind: ClassVar[str] = "cross_damping"
+    summary: ClassVar[str] = (
+        "a torque of the other axis' rate: -D_x omega_other, D_x of either sign (0 = none)")
     input_only: ClassVar[bool] = False
     axis: str = eqx.field(static=True, default="yaw")
 

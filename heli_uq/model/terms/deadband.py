@@ -40,6 +40,9 @@ class DeadBand(AbstractEffect, AbstractInputMap):
     """Dead zone ``sign(u) max(|u| - delta, 0)`` on the motor of ``axis`` (module docstring)."""
 
     kind: ClassVar[str] = "deadband"
+    summary: ClassVar[str] = (
+        "a motor's dead zone: its voltage becomes sign(u) max(|u| - delta, 0) before every gain it "
+        "feeds (the axis names the motor)")
     axis: str = eqx.field(static=True, default="yaw")
 
     def _declare(self):

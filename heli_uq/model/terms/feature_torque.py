@@ -73,6 +73,9 @@ class FeatureTorque(AbstractEffect, AbstractTorque):
     """
 
     kind: ClassVar[str] = "feature_torque"
+    summary: ClassVar[str] = (
+        "an equation recovered from a network: a sum of named features of the voltages with fitted "
+        "coefficients (option features in a model file)")
     input_only: ClassVar[bool] = True
     axis: str = eqx.field(static=True, default="yaw")
     features: tuple = eqx.field(static=True, default=("1",), converter=_features)

@@ -154,6 +154,10 @@ class GPTorque(AbstractEffect, AbstractTorque):
     """
 
     kind: ClassVar[str] = "gp_torque"
+    summary: ClassVar[str] = (
+        "model discrepancy: a Gaussian-process torque of the voltages (gp_tau; gp_f_J at each voltage"
+        " pair of the training window, gp_z_J whitened at the test window's new pairs); options "
+        "length_scale [V], project and form (centred | whitened) in a model file")
     record_keys: ClassVar[tuple[str, ...]] = ("reference", "whiten", "projection", "n_fitted")
     input_only: ClassVar[bool] = True
     axis: str = eqx.field(static=True, default="yaw")

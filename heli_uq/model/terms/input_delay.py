@@ -43,6 +43,9 @@ class InputDelay(AbstractEffect, AbstractInputMap):
     :meth:`filter_sequence`."""
 
     kind: ClassVar[str] = "input_delay"
+    summary: ClassVar[str] = (
+        "a motor acts on its voltage late: u'(t) = u(t - d) (0 = none); the axis names the motor, as "
+        "for deadband")
     filters_sequence: ClassVar[bool] = True
     axis: str = eqx.field(static=True, default="yaw")
 

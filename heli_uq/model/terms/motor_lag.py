@@ -46,6 +46,9 @@ class MotorLag(AbstractEffect, AbstractInputMap):
     through :meth:`filter_sequence`."""
 
     kind: ClassVar[str] = "motor_lag"
+    summary: ClassVar[str] = (
+        "a motor's thrust lags its voltage: tau du'/dt = u - u' (0 = none); the axis names the motor,"
+        " as for deadband")
     filters_sequence: ClassVar[bool] = True
     axis: str = eqx.field(static=True, default="yaw")
 

@@ -129,6 +129,9 @@ class NeuralTorque(AbstractEffect, AbstractTorque):
     """
 
     kind: ClassVar[str] = "neural_torque"
+    summary: ClassVar[str] = (
+        "hybrid model: a tanh network torque of the voltages (weights nn_W_*, nn_b_*, nn_w_*); "
+        "options inputs (u | u,x,v) and hidden in a model file")
     record_keys: ClassVar[tuple[str, ...]] = ("center", "scale", "projection", "reference")
     axis: str = eqx.field(static=True, default="yaw")
     inputs: str = eqx.field(static=True, default="u")

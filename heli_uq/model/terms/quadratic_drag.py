@@ -22,6 +22,8 @@ class QuadraticDrag(AbstractEffect, AbstractTorque):
     """``-c omega |omega|`` on ``axis``."""
 
     kind: ClassVar[str] = "quadratic_drag"
+
+    summary: ClassVar[str] = 'quadratic drag -c omega |omega| on the axis'
     input_only: ClassVar[bool] = False
     axis: str = eqx.field(static=True, default="yaw")
 

@@ -26,6 +26,8 @@ class QuadraticThrust(AbstractEffect, AbstractTorque):
     """``±k_q u |u|`` of ``axis``' own motor on ``axis`` (module docstring)."""
 
     kind: ClassVar[str] = "quadratic_thrust"
+    summary: ClassVar[str] = (
+        "an extra thrust k_q u |u| of the axis' own motor, in the sense of its linear gain")
     input_only: ClassVar[bool] = True
     axis: str = eqx.field(static=True, default="yaw")
 

@@ -45,6 +45,9 @@ class Stiction(AbstractEffect, AbstractTorque):
     """``-F_s exp(-(omega / omega_b)^2) tanh(omega / omega_s)`` on ``axis`` (module docstring)."""
 
     kind: ClassVar[str] = "stiction"
+    summary: ClassVar[str] = (
+        "breakaway friction above the sliding level, fading over omega_b (option, 0.02 rad/s); with "
+        "coulomb_friction the Stribeck law")
     input_only: ClassVar[bool] = False
     holds_still: ClassVar[bool] = True
     axis: str = eqx.field(static=True, default="yaw")

@@ -54,6 +54,9 @@ class ThrustTilt(AbstractEffect, AbstractTorque):
     K_psi_psi u_psi)`` (module docstring); ``axis`` must be ``"yaw"``."""
 
     kind: ClassVar[str] = "thrust_tilt"
+    summary: ClassVar[str] = (
+        "yaw only: the yaw torques K_psi_theta u_theta - K_psi_psi u_psi times (1 - a (1 - cos "
+        "theta)); a in [0, 2], 1 = the geometry's cos theta")
     input_only: ClassVar[bool] = False
     axis: str = eqx.field(static=True, default="yaw")
 

@@ -21,6 +21,8 @@ class TorqueOffset(AbstractEffect, AbstractTorque):
     """Constant torque ``T_0`` on ``axis``."""
 
     kind: ClassVar[str] = "torque_offset"
+
+    summary: ClassVar[str] = 'a constant torque T_0 on the axis'
     input_only: ClassVar[bool] = True
     axis: str = eqx.field(static=True, default="yaw")
 

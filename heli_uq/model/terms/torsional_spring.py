@@ -25,6 +25,8 @@ class TorsionalSpring(AbstractEffect, AbstractTorque):
     """``-k (angle - psi_0)`` on ``axis``."""
 
     kind: ClassVar[str] = "torsional_spring"
+
+    summary: ClassVar[str] = 'a restoring torque -k (q - q_0) on the axis (cable twist on yaw)'
     input_only: ClassVar[bool] = False
     axis: str = eqx.field(static=True, default="yaw")
 

@@ -44,7 +44,7 @@ def cmd_identifiability(args) -> int:
     for name, prior in priors.params.items():
         if not prior.free:
             base[name] = prior.a
-    posterior, note = None, None
+    posterior, posterior_prior, note = None, None, None
     if args.posterior is not None:
         if not Path(args.posterior).is_file():
             raise ParameterError(f"--posterior {args.posterior}: no such file")
@@ -59,6 +59,7 @@ def cmd_identifiability(args) -> int:
         # the posterior's own model: its terms hold what they took from the posterior's record
         # (a GP's pairs over the whole span, a network's input scaling), so its draws map
         model, posterior = post_model, idata.posterior
+        posterior_prior = idata.prior if "prior" in idata.groups() else None
         health = check_health(convergence(idata))
         if not health["ok"]:  # reported, as by 'sample': the user decides
             print(format_warnings(health), file=sys.stderr)
@@ -67,7 +68,8 @@ def cmd_identifiability(args) -> int:
     out = out_dir(args.out)
     result = identifiability_report(
         record, out, model=model, free=free, base=base, priors=priors, posterior=posterior,
-        error=args.error, n_points=args.points, seed=args.seed, posterior_note=note,
+        posterior_prior=posterior_prior, error=args.error, n_points=args.points, seed=args.seed,
+        posterior_note=note,
     )  # fmt: skip
     st = result["structural"]
     classes = {}

@@ -33,6 +33,7 @@ import numpy as np
 
 from heli_uq.data.record import Experiment
 from heli_uq.errors import ParameterError
+from heli_uq.identifiability.contraction import contraction, draws_in_w, sampled_prior_cov
 from heli_uq.identifiability.cross_check import cross_check
 from heli_uq.identifiability.fisher import fisher_information, fit_likelihood, precision_draws
 from heli_uq.identifiability.profiles import THRESHOLD_95, classify, profile_likelihood
@@ -123,32 +124,6 @@ def check_posterior_data(posterior, record: Experiment, where: str = "posterior"
                          "that holds that span")
 
 
-def draws_in_w(posterior, pv: ParameterVector, source: str = "posterior") -> np.ndarray:
-    """Draws of ``w`` from a posterior group (xarray Dataset), shape (S, P).
-
-    Raises
-    ------
-    ParameterError
-        If the posterior lacks a coordinate of ``w``.
-    """
-    cols = []
-    for n in pv.names:
-        if n not in posterior:
-            raise ParameterError(f"{source}: posterior has no variable {n!r} (free here); rerun "
-                                 f"with free parameters matching the posterior's")  # fmt: skip
-        v = np.asarray(posterior[n]).reshape(-1)
-        cols.append(np.log(v) if pv.is_log(n) else v)
-    return np.column_stack(cols)
-
-
-def contraction(cov_post: np.ndarray, prior_sd: np.ndarray, directions=()) -> tuple:
-    """Per-coordinate ``1 - var_post / var_prior`` and the same along unit ``directions``."""
-    per = 1.0 - np.diag(cov_post) / prior_sd**2
-    prior_cov = np.diag(prior_sd**2)
-    along = [1.0 - float(v @ cov_post @ v) / float(v @ prior_cov @ v) for v in directions]
-    return per, along
-
-
 #: Starts of the least-squares stage: the base values, Table 2, and perturbations of the base.
 N_STARTS = 3
 
@@ -221,8 +196,8 @@ def profile_coordinates(pv: ParameterVector, fit, prior_mean, prior_sd, null_bas
 
 def identifiability_report(record: Experiment, out_dir, *, model: HeliModel | None = None,
                            free=None, base=None, priors: PriorSet | None = None, posterior=None,
-                           error: str = "iid", n_points: int = 5, seed: int = 0, substeps=None,
-                           posterior_note: str | None = None, log=None) -> dict:  # fmt: skip
+                           posterior_prior=None, error: str = "iid", n_points: int = 5, seed: int = 0,
+                           substeps=None, posterior_note: str | None = None, log=None) -> dict:  # fmt: skip
     """Run the whole report on ``record`` and write it to ``out_dir``; returns the JSON dict.
 
     Parameters
@@ -243,6 +218,9 @@ def identifiability_report(record: Experiment, out_dir, *, model: HeliModel | No
         The ``posterior`` group of a ``posterior.nc`` for the Bayesian view (the CLI reads
         it with :func:`heli_uq.output.load_posterior`); without it the Laplace
         approximation.  It must come from ``record``'s data (:func:`check_posterior_data`).
+    posterior_prior : xarray.Dataset, optional
+        The same file's ``prior`` group: the posterior's contraction is measured against
+        it (:func:`sampled_prior_cov`); without it, against the declared priors.
     error : {"iid", "ar1"}
     n_points : int
         Points of the structural analysis (the fit and ``n_points - 1`` random ones).
@@ -298,14 +276,20 @@ def identifiability_report(record: Experiment, out_dir, *, model: HeliModel | No
 
     t0 = time.perf_counter()
     null_vectors = [np.array([d["loadings"][n] for n in pv.names]) for d in st.null_directions]
+    prior_cov = None
     if posterior is not None:
         draws = draws_in_w(posterior, pv)
-        source = "MCMC draws of the given posterior" + (f" ({posterior_note})" if posterior_note else "")
+        prior_cov = None if posterior_prior is None else sampled_prior_cov(posterior_prior, pv, prior_sd)
+        source = ("MCMC draws of the given posterior, against "
+                  + ("its file's prior draws (the prior it was sampled under; the initial state's "
+                     "declared prior)" if prior_cov is not None
+                     else "the declared priors (its file has no usable prior draws)")
+                  + (f" ({posterior_note})" if posterior_note else ""))  # fmt: skip
     else:
         draws = precision_draws(fit.w, _fisher_matrix(fim) + np.diag(1.0 / prior_sd**2), LAPLACE_DRAWS, seed)
         source = "Laplace approximation (F + prior precision)^-1 at the fit (no posterior given)"
     cov_post = np.cov(draws, rowvar=False)
-    per, along = contraction(cov_post, prior_sd, null_vectors)
+    per, along = contraction(cov_post, prior_sd, null_vectors, prior_cov=prior_cov)
     corr_post = np.corrcoef(draws, rowvar=False)
     timings["bayesian_s"] = time.perf_counter() - t0
 

@@ -25,13 +25,20 @@ def draws_in_w(posterior, pv: ParameterVector, source: str = "posterior") -> np.
     ParameterError
         If the posterior lacks a coordinate of ``w``.
     """
-    cols = []
     for n in pv.names:
         if n not in posterior:
             raise ParameterError(f"{source}: posterior has no variable {n!r} (free here); rerun "
                                  f"with free parameters matching the posterior's")  # fmt: skip
-        v = np.asarray(posterior[n]).reshape(-1)
-        cols.append(np.log(v) if pv.is_log(n) else v)
+    return _columns(posterior, pv, pv.names)
+
+
+def _columns(group, pv: ParameterVector, names) -> np.ndarray:
+    """Draws of the coordinates ``names`` of ``w`` (their ``log`` where ``w`` takes it), (S, len)."""
+    cols = []
+    for n in names:
+        v = np.asarray(group[n], dtype=float).reshape(-1)
+        with np.errstate(divide="ignore", invalid="ignore"):  # a draw at 0: -inf, dropped by callers
+            cols.append(np.log(v) if pv.is_log(n) else v)
     return np.column_stack(cols)
 
 
@@ -65,12 +72,7 @@ def sampled_prior_cov(prior_group, pv: ParameterVector, prior_sd: np.ndarray):
     have = [j for j, n in enumerate(pv.names) if n in prior_group]
     if not have:
         return None
-    cols = []
-    for j in have:
-        v = np.asarray(prior_group[pv.names[j]], dtype=float).reshape(-1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            cols.append(np.log(v) if pv.is_log(pv.names[j]) else v)
-    draws = np.column_stack(cols)
+    draws = _columns(prior_group, pv, [pv.names[j] for j in have])
     draws = draws[np.all(np.isfinite(draws), axis=1)]
     if draws.shape[0] < MIN_PRIOR_DRAWS:
         return None

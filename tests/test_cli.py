@@ -730,3 +730,14 @@ def test_a_cache_entry_read_while_another_process_writes_it_is_compiled_again_wi
     assert done.returncode == 0, done.stderr[-2000:]
     first, again = (float(v) for v in done.stdout.split())
     assert again == first == pytest.approx(math.sin(0.5) * 3.0 + 1.0, rel=1e-12)
+
+
+@pytest.mark.parametrize("command", [["simulate", "--inputs", "table3"], ["identifiability"], ["design"]])
+def test_a_network_posterior_option_is_refused_where_nothing_is_sampled(tmp_path, capsys, command):
+    """``--nn-posterior`` says how a network is *sampled*: only ``sample`` and ``run`` take
+    it.  The other commands with model options had it and ignored it (exit 0)."""
+    with pytest.raises(SystemExit) as info:  # an argparse usage error
+        main([*command, "--model", "hybrid", "--nn-posterior", "last-layer", "--out", str(tmp_path / "out")])
+    assert info.value.code == 2
+    assert_one_line_error(capsys.readouterr().err, "unrecognized arguments: --nn-posterior")
+    assert not (tmp_path / "out").exists()

@@ -60,9 +60,10 @@ def _effects_help() -> str:
 EFFECTS_HELP = _effects_help()
 
 
-def add_model_options(p) -> None:
+def add_model_options(p, *, sampled: bool = False) -> None:
     """``--effects``, ``--model-file`` and the hybrid model's ``--model``, ``--nn-inputs``,
-    ``--hidden``, ``--nn-axes``."""
+    ``--hidden``, ``--nn-axes``; with ``sampled`` (a command that samples a posterior) also
+    ``--nn-posterior``, which other commands would only ignore."""
     p.add_argument("--effects", metavar="AXIS:EFFECT,...", default=None,
                    help="named effects added to the paper's model, e.g. "
                         "yaw:coulomb_friction,yaw:torque_offset (default: none; see 'effects' "
@@ -79,15 +80,20 @@ def add_model_options(p) -> None:
     p.add_argument("--hidden", type=int, default=None,
                    help=f"hybrid: hidden units per network (default: {DEFAULT_HIDDEN}; the paper "
                         "used 16; NUTS over every weight mixes at 2 on the rig record, not at 4)")
+    if sampled:
+        _add_network_posterior(p)
+    p.add_argument("--nn-axes", default=None, metavar="yaw|pitch|pitch,yaw",
+                   help="hybrid: the axes that get a network (default: yaw, the axis the "
+                        "paper's network corrected)")
+
+
+def _add_network_posterior(p) -> None:
     p.add_argument("--nn-posterior", choices=["full", "last-layer"], default=None,
                    help="hybrid: 'full' (default) samples every weight (2 units: 10 min for 4 "
                         "chains on 0-91 s of the rig record; wider networks saturate NUTS's "
                         "trees); 'last-layer' trains the network, fixes its "
                         "hidden layer and samples its output weights with the physics (fast and "
                         "converged, but its band holds the true curve less often)")
-    p.add_argument("--nn-axes", default=None, metavar="yaw|pitch|pitch,yaw",
-                   help="hybrid: the axes that get a network (default: yaw, the axis the "
-                        "paper's network corrected)")
 
 
 def model_from_args(args):

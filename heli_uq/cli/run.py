@@ -160,7 +160,7 @@ def add_parser(subparsers):
                    help="warm-up iterations per chain (default: 500)")
     p.add_argument("--draws", type=int, default=500, help="kept draws per chain (default: 500)")
     p.add_argument("--seed", type=int, default=0, help="seed of the posterior (default: 0)")
-    add_model_options(p)
+    add_model_options(p, sampled=True)
     add_trust_options(p)
     p.add_argument("--no-progress", action="store_true",
                    help="no progress lines (they go to stderr, rewritten in place on a terminal,"

@@ -225,7 +225,7 @@ def add_parser(subparsers):
         ),
         formatter_class=Formatter,
     )
-    add_model_options(p)
+    add_model_options(p, sampled=True)
     p.add_argument("--sampler", choices=["nuts", "emcee", "laplace", "prior"], default="nuts",
                    help="sampler (default: nuts); 'laplace': independent draws of the Laplace "
                         "approximation at the MAP, minutes instead of hours for a hybrid model, "

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from heli_uq.cli import main
+from heli_uq.identifiability.contraction import contraction, draws_in_w
 from heli_uq.identifiability.fisher import WhitenedResiduals, fisher_information, fit_likelihood
 from heli_uq.identifiability.profiles import THRESHOLD_95
-from heli_uq.identifiability.report import contraction, draws_in_w, profile_coordinates
+from heli_uq.identifiability.report import profile_coordinates
 from heli_uq.identifiability.structural import (
     ParameterVector,
     analytic_null_directions,

@@ -48,8 +48,8 @@ from heli_uq.probability.likelihood import loss_v
 from heli_uq.probability.priors import PriorSet, RecordStart
 from heli_uq.probability.problem import data_sha256, make_problem
 
-__all__ = ["identifiability_report", "prior_moments", "draws_in_w", "contraction",
-           "check_posterior_data", "profile_coordinates", "PRIOR_RANGE_SD"]  # fmt: skip
+__all__ = ["identifiability_report", "prior_moments", "check_posterior_data", "profile_coordinates",
+           "PRIOR_RANGE_SD"]  # fmt: skip
 
 #: Half-width of the explored prior range, in prior standard deviations (of the log for log-normals).
 PRIOR_RANGE_SD = 2.0

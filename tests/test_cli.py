@@ -580,7 +580,8 @@ def test_simulate_with_effects_and_model_file(tmp_path, capsys, small_record):
 @pytest.mark.parametrize(
     ("argv", "needles"),
     [
-        (["--effects", "yaw:backlash"], ["--effects", "unknown effect 'backlash'", "coulomb_friction"]),
+        (["--effects", "yaw:backlash"], ["--effects", "unknown effect 'backlash'", "coulomb_friction",
+                                            "heli_uq/model/terms/__init__.py"]),
         (["--effects", "roll:deadband"], ["--effects", "unknown axis 'roll'", "pitch, yaw"]),
         (["--effects", "deadband"], ["--effects", "AXIS:EFFECT"]),
         (["--model-file", "MODEL"], ["m.json", "unknown effect 'spring'"]),

@@ -70,7 +70,8 @@ def _effect(item, where: str):
         raise ParameterError(f"{where}: effect {item!r}: expected 'AXIS:EFFECT' or an object")
     if not isinstance(name, str) or name not in TERMS:
         raise ParameterError(f"{where}: unknown effect {name!r}; expected one of "
-                             f"{', '.join(TERMS)}")  # fmt: skip
+                             f"{', '.join(TERMS)} (a new term is registered in TERMS, "
+                             "heli_uq/model/terms/__init__.py)")  # fmt: skip
     if not isinstance(axis, str) or axis not in AXES:
         raise ParameterError(f"{where}: effect {name!r}: unknown axis {axis!r}; expected one of "
                              f"{', '.join(AXES)}")  # fmt: skip

@@ -130,7 +130,7 @@ def test_read_accepts_format_variations(tmp_path, bom, eol, header):
 def test_read_accepts_a_sample_time_repeated_with_rounding(tmp_path):
     """A writer that prints dt on every row (e.g. as differences of float times) may round
     it; within DT_REL_TOL it is the same sample time, beyond it the row is refused."""
-    from heli_uq.data.record import DT_REL_TOL
+    from heli_uq.data.csv_read import DT_REL_TOL
 
     rows = [r.rstrip(",") + ("" if i == 0 else f",{0.01 * (1 + 0.1 * DT_REL_TOL * (-1) ** i)!r}")
             for i, r in enumerate(GOOD_ROWS)]
@@ -186,6 +186,88 @@ def test_read_refuses_a_jump_that_is_not_a_wrap(tmp_path):
         read_record(path)
     assert "line 4, column 4 (psi)" in str(info.value)
     assert "+3.973 rad" in str(info.value)
+
+
+def _assert_same_record(exp, ref):
+    np.testing.assert_array_equal(exp.u, ref.u)
+    np.testing.assert_array_equal(exp.y, ref.y)
+    assert exp.dt == ref.dt and exp.n == ref.n
+
+
+@pytest.mark.parametrize("order", [(4, 3, 2, 1, 0), (2, 0, 3, 1, 4)])
+def test_read_places_columns_by_their_header_in_any_order(tmp_path, order):
+    """The header says which column holds what: a writer that orders them otherwise gives
+    the same record (published cells and short names alike)."""
+    ref = read_record(write(tmp_path / "ref.csv", PLAIN_HEADER, GOOD_ROWS))
+    for i, names in enumerate((HEADER, PLAIN_HEADER.split(","))):
+        rows = [",".join(r.split(",")[j] for j in order) for r in GOOD_ROWS]
+        path = write(tmp_path / f"r{i}.csv", ",".join(names[j] for j in order), rows)
+        _assert_same_record(read_record(path), ref)
+
+
+def test_read_takes_the_columns_named_in_words(tmp_path):
+    header = "Pitch voltage (V), Yaw voltage (V), pitch angle [rad], Yaw Angle [rad], sample time [s]"
+    ref = read_record(write(tmp_path / "ref.csv", PLAIN_HEADER, GOOD_ROWS))
+    _assert_same_record(read_record(write(tmp_path / "r.csv", header, GOOD_ROWS)), ref)
+
+
+def test_read_skips_the_row_index_a_data_frame_writes(tmp_path):
+    """pandas' ``to_csv`` writes its row index as a first column with an empty header cell
+    and the missing sample times as empty cells: the same record."""
+    pandas = pytest.importorskip("pandas")
+    exp = make_experiment(n=50)
+    frame = pandas.DataFrame(np.hstack([exp.u, exp.y]), columns=HEADER[:4])
+    frame[HEADER[4]] = [exp.dt] + [np.nan] * (exp.n - 1)
+    path = tmp_path / "frame.csv"
+    frame.to_csv(path)  # index=True by default
+    assert path.read_text().startswith(",Pitch motor")
+    back = read_record(path)
+    np.testing.assert_allclose(back.u, exp.u, rtol=1e-15)
+    np.testing.assert_allclose(back.y, exp.y, rtol=1e-15)
+    assert back.dt == exp.dt
+
+
+def test_a_time_column_gives_the_sample_time_or_is_checked_against_it(tmp_path):
+    """Without a sample-time column the time column's spacing is the sample time; with
+    both, a time stamp off the grid by more than TIME_TOL of a sample is refused with its
+    line; one rounded within it is read."""
+    from heli_uq.data.csv_read import TIME_TOL
+
+    ref = read_record(write(tmp_path / "ref.csv", PLAIN_HEADER, GOOD_ROWS))
+    times = [5.0 + 0.01 * k for k in range(len(GOOD_ROWS))]
+    rows = [f"{t!r}," + ",".join(r.split(",")[:4]) for t, r in zip(times, GOOD_ROWS)]
+    exp = read_record(write(tmp_path / "t.csv", "time [s],u_theta,u_psi,theta,psi", rows))
+    _assert_same_record(exp, ref)
+    np.testing.assert_allclose(exp.t, ref.t, rtol=0, atol=TIME_ATOL)  # from 0, as documented
+    both = [f"{t!r},{r}" for t, r in zip(times, GOOD_ROWS)]
+    both[2] = f"{times[2] + 0.5 * TIME_TOL * 0.01!r}," + GOOD_ROWS[2]
+    _assert_same_record(read_record(write(tmp_path / "both.csv", "t," + PLAIN_HEADER, both)), ref)
+    both[2] = f"{times[2] + 2 * TIME_TOL * 0.01!r}," + GOOD_ROWS[2]
+    with pytest.raises(DataFormatError) as info:
+        read_record(write(tmp_path / "off.csv", "t," + PLAIN_HEADER, both))
+    assert "line 4, column 1 (time)" in str(info.value) and "evenly spaced" in str(info.value)
+
+
+HEADER_CASES = {
+    "unknown cell": ("u_theta,u_psi,angle,psi,dt", ["cell 3 ('angle') names no column"]),
+    "twice": ("u_theta,u_psi,theta,Pitch angle [rad],dt", ["cells 3 and 4 both name theta"]),
+    "missing": ("u_theta,u_psi,theta,dt,", ["cell 5 ('') names no column"]),
+    "missing psi": ("u_theta,u_psi,theta,dt", ["no column for psi"]),
+    "no sample time": ("u_theta,u_psi,theta,psi", ["no column for dt (or a time column)"]),
+    "index not first": ("u_theta,,u_psi,theta,psi,dt", ["cell 2 ('') names no column"]),
+}
+
+
+@pytest.mark.parametrize("case", HEADER_CASES)
+def test_read_refuses_a_header_naming_what_it_cannot_place(tmp_path, case):
+    header, fragments = HEADER_CASES[case]
+    path = write(tmp_path / "h.csv", header, GOOD_ROWS)
+    with pytest.raises(DataFormatError) as info:
+        read_record(path)
+    message = str(info.value)
+    assert "h.csv, line 1: unexpected header" in message and "in any order" in message
+    for fragment in fragments:
+        assert fragment in message
 
 
 def test_read_ignores_trailing_empty_line(tmp_path):

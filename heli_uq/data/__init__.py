@@ -4,6 +4,7 @@ Layer 1 of the package (imports only :mod:`heli_uq.errors` and :mod:`heli_uq.io`
 Synthetic records need the simulator and live in :mod:`heli_uq.simulation`.
 """
 
+from heli_uq.data.csv_read import read_record as read_record
 from heli_uq.data.experimental import (
     DATA_ENV_VAR as DATA_ENV_VAR,
 )
@@ -26,7 +27,6 @@ from heli_uq.data.record import COLUMNS as COLUMNS
 from heli_uq.data.record import HEADER as HEADER
 from heli_uq.data.record import Experiment as Experiment
 from heli_uq.data.record import parse_window as parse_window
-from heli_uq.data.record import read_record as read_record
 
 __all__ = [
     "DATA_ENV_VAR", "EXPERIMENTAL_FILENAME", "EXPERIMENTAL_SHA256", "EXPERIMENTAL_URL",

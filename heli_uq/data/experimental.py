@@ -9,7 +9,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from heli_uq.data.record import Experiment, read_record
+from heli_uq.data.csv_read import read_record
+from heli_uq.data.record import Experiment
 from heli_uq.errors import DataFormatError
 
 __all__ = [

@@ -1,4 +1,4 @@
-"""Rig records of the 2-DOF lab helicopter: the :class:`Experiment` type, reading, writing, slicing.
+"""Rig records of the 2-DOF lab helicopter: the :class:`Experiment` type, writing, slicing.
 
 A record is a CSV file in the format published with HelicopterSciML.jl (UTF-8 with a
 byte-order mark, CRLF line endings)::
@@ -10,13 +10,12 @@ byte-order mark, CRLF line endings)::
 
 i.e. columns ``u_theta, u_psi, theta, psi, dt`` where the sample time ``dt`` appears in
 the first data row only.  Inputs are zero-order held: ``u[k]`` acts on
-``[t_k, t_{k+1})``.  In memory a record is an :class:`Experiment`.
+``[t_k, t_{k+1})``.  In memory a record is an :class:`Experiment`; reading a file, and
+the variants of the format that are accepted, is :mod:`heli_uq.data.csv_read`.
 """
 
 from __future__ import annotations
 
-import csv
-import logging
 import math
 import os
 from dataclasses import dataclass
@@ -27,19 +26,8 @@ import numpy as np
 from heli_uq.errors import DataFormatError, ParameterError
 from heli_uq.io import atomic_write_bytes
 
-__all__ = ["COLUMNS", "HEADER", "Experiment", "parse_window", "read_record"]
+__all__ = ["COLUMNS", "HEADER", "Experiment", "parse_window"]
 
-#: Relative difference at which a repeated sample time counts as a different one (a
-#: writer that prints dt on every row may round it).
-DT_REL_TOL = 1e-9
-#: Sample times a record may have [s]: the rig's is 0.01; outside, a value is a unit or
-#: writing error (5e-324 s made every time stamp 0, 1e-300 s a singular fit).
-DT_RANGE = (1e-6, 10.0)
-#: Largest magnitude of each measured column (voltages [V], angles [rad]) a record may hold:
-#: far beyond any rig (its motors take a few volts; 1e4 rad is 1600 turns), so a value
-#: above it is a writing error, not a measurement (1e300 in an angle column was read as a
-#: wrap of 1.6e299 turns).
-PLAUSIBLE = ((1e3, "V"), (1e3, "V"), (1e4, "rad"), (1e4, "rad"))
 #: Short column names, used in error messages and accepted as a plain header.
 COLUMNS = ("u_theta", "u_psi", "theta", "psi", "dt")
 #: The published header, written verbatim by :meth:`Experiment.to_csv`.
@@ -51,25 +39,8 @@ HEADER = (
     r"Sample time $\Delta t$ [s]",
 )
 
-#: An angle that changes by more than this in one sample [rad] has not moved: it was
-#: wrapped into a 2π interval by the writer (a rig's yaw turns < 0.1 rad per 0.01 s).
-MAX_ANGLE_STEP = math.pi
-#: A wrap is a jump within this [rad] of a multiple of 2π; any other jump beyond
-#: :data:`MAX_ANGLE_STEP` is refused.
-WRAP_RESIDUAL = 0.5
-
 # Relative tolerance on grid arithmetic (time spacing, window edges), in units of dt.
 _GRID_RTOL = 1e-6
-
-
-def _normalise_header_cell(cell: str) -> str:
-    return " ".join(cell.replace("\ufeff", "").split()).lower()
-
-
-_ACCEPTED_HEADERS = {
-    tuple(_normalise_header_cell(c) for c in HEADER),
-    tuple(_normalise_header_cell(c) for c in COLUMNS),
-}
 
 
 def _as_float(text: str) -> float | None:
@@ -271,122 +242,3 @@ def parse_window(text: str) -> tuple[float, float]:
         ):
             return start, stop
     raise ParameterError(f"window {text!r}: {form}")
-
-
-def read_record(path: str | os.PathLike) -> Experiment:
-    """Read a rig record CSV (published format; BOM and CRLF optional).
-
-    Parameters
-    ----------
-    path : str or path-like
-        CSV file with a header (published or plain ``u_theta,u_psi,theta,psi,dt``) and
-        at least 2 data rows; the sample time is in the first data row, and later rows
-        leave its cell empty, leave it out, or repeat it (to :data:`DT_REL_TOL`).  Angles
-        wrapped into a 2π interval by the writer are unwrapped, with a warning.
-
-    Returns
-    -------
-    Experiment
-        N data rows, ``t = k*dt`` from 0, ``source = str(path)``.
-
-    Raises
-    ------
-    DataFormatError
-        Naming the file, the 1-based line and the column, on any format problem.
-    """
-    path = Path(path)
-    try:
-        with open(path, encoding="utf-8-sig", newline="") as f:
-            reader = csv.reader(f)
-            rows = [(reader.line_num, row) for row in reader]  # (1-based line, cells)
-    except FileNotFoundError:
-        raise DataFormatError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise DataFormatError(f"{path}: cannot read as a UTF-8 CSV file ({exc})") from None
-
-    def fail(line: int, col: int | None, message: str) -> DataFormatError:
-        where = f"{path}, line {line}"
-        if col is not None:
-            where += f", column {col + 1} ({COLUMNS[col]})"
-        return DataFormatError(f"{where}: {message}")
-
-    while rows and not any(cell.strip() for cell in rows[-1][1]):
-        rows.pop()  # trailing empty lines
-    if not rows:
-        raise DataFormatError(f"{path}: empty file, expected a header and data rows")
-
-    line, header = rows[0]
-    cells = [c for c in header if c.strip()]
-    if cells and all(_as_float(c) is not None for c in cells):
-        raise fail(line, None, f"missing header: found numbers {header} where the header "
-                   f"({','.join(COLUMNS)} or the published one) was expected")
-    if tuple(_normalise_header_cell(c) for c in header) not in _ACCEPTED_HEADERS:
-        raise fail(line, None, f"unexpected header {header}, expected "
-                   f"{','.join(HEADER)!r} or {','.join(COLUMNS)!r}")
-    if len(rows) < 3:
-        raise DataFormatError(f"{path}: {len(rows) - 1} data row(s), expected at least 2")
-
-    values = np.empty((len(rows) - 1, 4))
-    dt = None
-    for k, (line, row) in enumerate(rows[1:]):
-        if k > 0 and len(row) == len(COLUMNS) - 1:
-            row = [*row, ""]  # the empty sample-time cell left out (a writer that drops it)
-        if len(row) != len(COLUMNS):
-            raise fail(line, None, f"expected {len(COLUMNS)} cells"
-                       + (f" ({len(COLUMNS) - 1} after the first data row)" if k > 0 else "")
-                       + f", found {len(row)}")
-        for col, cell in enumerate(row):
-            if col == 4 and k > 0 and cell.strip() == "":
-                continue
-            if cell.strip() == "":
-                raise fail(line, col, "expected a number, found an empty cell"
-                           + (" (the sample time belongs in the first data row)" if col == 4
-                              else ""))
-            x = _as_float(cell)
-            if x is None or not math.isfinite(x):
-                raise fail(line, col, f"expected a finite number, found {cell!r}")
-            if col < 4:
-                limit, unit = PLAUSIBLE[col]
-                if abs(x) > limit:
-                    raise fail(line, col, f"expected {'a voltage' if col < 2 else 'an angle'} within "
-                                          f"±{limit:g} {unit}, found {cell!r}")  # fmt: skip
-                values[k, col] = x
-            elif k == 0:
-                if not DT_RANGE[0] <= x <= DT_RANGE[1]:
-                    raise fail(line, col, f"expected a sample time in {DT_RANGE[0]:g}..{DT_RANGE[1]:g} s, "
-                                          f"found {cell!r}")  # fmt: skip
-                dt = x
-            elif not math.isclose(x, dt, rel_tol=DT_REL_TOL):
-                raise fail(line, col, f"sample time {cell!r} differs from {dt!r} in line "
-                           f"{rows[1][0]}; expected an empty cell")
-    _unwrap_angles(values, [line for line, _ in rows[1:]], fail, path)
-    n = values.shape[0]
-    return Experiment(np.arange(n) * dt, values[:, :2], values[:, 2:], dt, str(path))
-
-
-def _unwrap_angles(values: np.ndarray, lines: list[int], fail, path) -> None:
-    """Undo, in place, a writer's wrapping of the angles (columns 2, 3) into a 2π interval.
-
-    A jump beyond :data:`MAX_ANGLE_STEP` between two samples within :data:`WRAP_RESIDUAL` of
-    a multiple of 2π is removed from that sample on, with a warning naming the lines; any
-    other such jump raises ``fail(line, column, message)``.
-    """
-    for col in (2, 3):
-        step = np.diff(values[:, col])
-        jumps = np.flatnonzero(np.abs(step) > MAX_ANGLE_STEP)
-        if jumps.size == 0:
-            continue
-        turns = np.round(step[jumps] / (2 * np.pi))
-        bad = np.abs(step[jumps] - 2 * np.pi * turns) > WRAP_RESIDUAL
-        if bad.any():
-            j = int(jumps[bad][0])
-            raise fail(lines[j + 1], col, f"jumps by {step[j]:+.3f} rad from the line before: "
-                       f"expected less than {MAX_ANGLE_STEP:.3f} rad per sample, or a wrap "
-                       f"by a multiple of 2π")
-        shift = np.zeros(values.shape[0])
-        shift[jumps + 1] = 2 * np.pi * turns
-        values[:, col] -= np.cumsum(shift)
-        shown = ", ".join(str(lines[j + 1]) for j in jumps[:5]) + (" ..." if jumps.size > 5 else "")
-        logging.getLogger(__name__).warning(
-            f"{path}: column {col + 1} ({COLUMNS[col]}) wraps by 2π at {jumps.size} line(s) "
-            f"({shown}); read as a continuous angle")

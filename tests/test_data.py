@@ -248,6 +248,22 @@ def test_a_time_column_gives_the_sample_time_or_is_checked_against_it(tmp_path):
     assert "line 4, column 1 (time)" in str(info.value) and "evenly spaced" in str(info.value)
 
 
+def test_angles_in_degrees_by_the_header_are_read_in_radians(tmp_path, caplog):
+    """A yaw logged in degrees under a header that says so is converted, with a warning
+    naming the column; a unit no quantity of that column has is refused."""
+    ref = read_record(write(tmp_path / "ref.csv", PLAIN_HEADER, GOOD_ROWS))
+    rows = [",".join(c if j != 3 or c == "" else repr(math.degrees(float(c)))
+                     for j, c in enumerate(r.split(","))) for r in GOOD_ROWS]  # fmt: skip
+    header = "u_theta [V],u_psi [V],theta [rad],Yaw angle (deg),dt [s]"
+    with caplog.at_level("WARNING", logger="heli_uq"):
+        exp = read_record(write(tmp_path / "deg.csv", header, rows))
+    np.testing.assert_allclose(exp.y, ref.y, rtol=1e-15)
+    np.testing.assert_array_equal(exp.u, ref.u)
+    assert "column 4 (psi) is in deg" in caplog.text
+    with pytest.raises(DataFormatError, match=r"gives theta in 'v'; expected one of rad"):
+        read_record(write(tmp_path / "v.csv", "u_theta,u_psi,theta [V],psi,dt", GOOD_ROWS))
+
+
 HEADER_CASES = {
     "unknown cell": ("u_theta,u_psi,angle,psi,dt", ["cell 3 ('angle') names no column"]),
     "twice": ("u_theta,u_psi,theta,Pitch angle [rad],dt", ["cells 3 and 4 both name theta"]),

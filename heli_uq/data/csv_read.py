@@ -8,6 +8,8 @@ Which file column holds which quantity is read from the header, in any order:
   markup and a trailing unit in brackets are ignored (:data:`COLUMN_NAMES`);
 * a first column whose header cell is empty or ``index`` (what a data-frame library writes
   for its row index) is skipped; its cells must be numbers;
+* a unit in the cell's trailing brackets must be one of :data:`UNITS`: V (or mV), rad (or
+  degrees, converted with a warning), s (or ms); the published header's are V, rad and s;
 * a time column (``t``, ``time``, with a unit or not) is checked against the sample time:
   ``t_k = t_0 + k dt`` to :data:`TIME_TOL` of a sample.  A file with a time column needs no
   sample-time column: ``dt`` is then its mean spacing.
@@ -32,7 +34,7 @@ from heli_uq.data.record import COLUMNS, HEADER, Experiment, _as_float
 from heli_uq.errors import DataFormatError
 
 __all__ = ["read_record", "COLUMN_NAMES", "DT_REL_TOL", "DT_RANGE", "PLAUSIBLE", "MAX_ANGLE_STEP",
-           "WRAP_RESIDUAL", "TIME_TOL", "DT_DIGITS"]  # fmt: skip
+           "WRAP_RESIDUAL", "TIME_TOL", "DT_DIGITS", "UNITS"]  # fmt: skip
 
 #: Relative difference at which a repeated sample time counts as a different one (a
 #: writer that prints dt on every row may round it).
@@ -69,17 +71,35 @@ COLUMN_NAMES = {
     "dt": ("dt", "δt", "sample time", "sampling time", "time step", "delta t"),
     "time": ("t", "time"),
 }
+#: The units a header may give each quantity, with the factor to the package's unit (V, rad,
+#: s).  An angle in degrees is converted, with a warning; a unit not listed is refused.
+UNITS = {
+    "u_theta": {"v": 1.0, "volt": 1.0, "volts": 1.0, "mv": 1e-3},
+    "theta": {"rad": 1.0, "radian": 1.0, "radians": 1.0, "deg": math.pi / 180, "degree": math.pi / 180,
+              "degrees": math.pi / 180, "°": math.pi / 180},
+    "dt": {"s": 1.0, "sec": 1.0, "seconds": 1.0, "ms": 1e-3},
+}
+UNITS.update(u_psi=UNITS["u_theta"], psi=UNITS["theta"], time=UNITS["dt"])
 #: First header cells of a row-index column.
 INDEX_NAMES = ("", "index")
 _MEASURED = COLUMNS[:4]
 _TEX = str.maketrans("", "", "$\\{}")
 
 
+_UNIT = re.compile(r"\s*[\[(]([^\[\]()]*)[\])]$")
+
+
 def _cell_key(cell: str) -> str:
     """A header cell lower-cased, without BOM, TeX markup, repeated spaces or a trailing unit
     (``Pitch motor $u_\\theta$ [V]`` -> ``pitch motor u_theta``)."""
     text = " ".join(cell.replace("\ufeff", "").translate(_TEX).split()).lower()
-    return re.sub(r"\s*[\[(][^\[\]()]*[\])]$", "", text)
+    return _UNIT.sub("", text)
+
+
+def _cell_unit(cell: str) -> str | None:
+    """The unit a header cell gives in trailing brackets (lower-case), or None."""
+    match = _UNIT.search(" ".join(cell.replace("\ufeff", "").translate(_TEX).split()).lower())
+    return None if match is None else match.group(1).strip()
 
 
 def _roles(cell: str) -> set[str]:
@@ -88,10 +108,12 @@ def _roles(cell: str) -> set[str]:
             for name in names if key == name or (" " in name and name in key)}  # fmt: skip
 
 
-def _columns(header: list[str], fail_header) -> dict[str, int]:
-    """``{quantity: file column}`` of a header (``"index"`` for a skipped row index);
-    ``fail_header(detail)`` makes the error."""
+def _columns(header: list[str], fail_header) -> tuple[dict[str, int], dict[str, float]]:
+    """``{quantity: file column}`` of a header (``"index"`` for a skipped row index) and
+    ``{quantity: factor}`` to the package's units of those whose header gives another unit
+    (:data:`UNITS`); ``fail_header(detail)`` makes the error."""
     found: dict[str, int] = {}
+    scales: dict[str, float] = {}
     for col, cell in enumerate(header):
         roles = _roles(cell)
         if col == 0 and not roles and _cell_key(cell) in INDEX_NAMES:
@@ -103,12 +125,19 @@ def _columns(header: list[str], fail_header) -> dict[str, int]:
         if role in found:
             raise fail_header(f"cells {found[role] + 1} and {col + 1} both name {role}")
         found[role] = col
+        unit = _cell_unit(cell)
+        if role in UNITS and unit is not None:
+            if unit not in UNITS[role]:
+                raise fail_header(f"cell {col + 1} ({cell.strip()!r}) gives {role} in {unit!r}; "
+                                  f"expected one of {', '.join(UNITS[role])}")  # fmt: skip
+            if UNITS[role][unit] != 1.0:
+                scales[role] = UNITS[role][unit]
     missing = [r for r in _MEASURED if r not in found]
     if "dt" not in found and "time" not in found:
         missing.append("dt (or a time column)")
     if missing:
         raise fail_header(f"no column for {', '.join(missing)}")
-    return found
+    return found, scales
 
 
 def read_record(path: str | os.PathLike) -> Experiment:
@@ -156,7 +185,11 @@ def read_record(path: str | os.PathLike) -> Experiment:
     if cells and all(_as_float(c) is not None for c in cells):
         raise DataFormatError(f"{path}, line {line}: missing header: found numbers {header} where "
                               f"the header was expected ({expected})")  # fmt: skip
-    columns = _columns(header, fail_header)
+    columns, scales = _columns(header, fail_header)
+    for role, factor in scales.items():
+        logging.getLogger(__name__).warning(
+            f"{path}: column {columns[role] + 1} ({role}) is in {_cell_unit(header[columns[role]])} "
+            f"by its header; read in {next(iter(UNITS[role]))} (× {factor:.6g})")
     role_of = {col: role for role, col in columns.items()}
     if len(rows) < 3:
         raise DataFormatError(f"{path}: {len(rows) - 1} data row(s), expected at least 2")
@@ -165,7 +198,7 @@ def read_record(path: str | os.PathLike) -> Experiment:
         where = f"{path}, line {line}" + ("" if col is None else f", column {col + 1} ({role_of[col]})")
         return DataFormatError(f"{where}: {message}")
 
-    values, times, dt = _read_rows(rows[1:], columns, fail)
+    values, times, dt = _read_rows(rows[1:], columns, scales, fail)
     lines = [line for line, _ in rows[1:]]
     if times is not None:
         dt = _check_times(times, dt, lines, columns["time"], fail)
@@ -174,9 +207,10 @@ def read_record(path: str | os.PathLike) -> Experiment:
     return Experiment(np.arange(n) * dt, values[:, :2], values[:, 2:], dt, str(path))
 
 
-def _read_rows(rows, columns: dict[str, int], fail):
+def _read_rows(rows, columns: dict[str, int], scales: dict[str, float], fail):
     """The measured columns (N, 4) in :data:`COLUMNS` order, the time column (N,) or None,
-    and the sample time (None without a sample-time column)."""
+    and the sample time (None without a sample-time column), each in the package's units
+    (its header's unit times ``scales``)."""
     width = max(columns.values()) + 1
     dt_last = columns.get("dt") == width - 1
     values = np.empty((len(rows), 4))
@@ -199,6 +233,7 @@ def _read_rows(rows, columns: dict[str, int], fail):
             x = _as_float(cell)
             if x is None or not math.isfinite(x):
                 raise fail(line, col, f"expected a finite number, found {cell!r}")
+            x *= scales.get(role, 1.0)
             if role in PLAUSIBLE:
                 limit, unit = PLAUSIBLE[role]
                 if abs(x) > limit:

@@ -244,6 +244,16 @@ def test_cli_run_main_job_end_to_end(tmp_path, capsys):
     assert set(summary["windows"]) == {"train", "test"}
     assert summary["error_model"] == "iid"
     assert main(["run", "--data", str(csv), "--draws", "0", "--out", str(out)]) == 2
+    # a resume under another seed or model is refused before any stage writes: the prior
+    # check of the new settings had replaced the finished run's beside its old posterior
+    written = {f: (out / f).read_bytes() for f in ("prior/summary.json", "data/data.png")}
+    capsys.readouterr()
+    for change, needle in ((["--seed", "1"], "seed 0 -> 1"), (["--effects", "yaw:torque_offset"], "model")):
+        code = main(["run", "--data", str(csv), "--chains", "1", "--warmup", "40", "--draws", "30",
+                     "--no-progress", "--out", str(out), "--resume", *change])  # fmt: skip
+        err = capsys.readouterr().err
+        assert code == 2 and "--resume: the run in" in err and needle in err, err
+    assert all((out / f).read_bytes() == b for f, b in written.items())
 
 
 #: A Gaussian target's sd in each of its coordinates, and its correlation, for the

@@ -50,14 +50,35 @@ def _record_for_run(spec: str, out: Path):
     return read_record(path)
 
 
-def _check_posterior_size(record, model, args) -> None:
-    """Refuse draws that cannot fit in memory before any stage runs."""
+#: ``run``'s NUTS settings beyond the command's options (those of ``sample``'s defaults).
+RUN_NUTS = {"max_tree_depth": 8, "adapt_mass_matrix": True}
+
+
+def _check_posterior(record, model, args, train, test, out: Path) -> None:
+    """Refuse, before any stage writes, draws that cannot fit in memory and a ``--resume``
+    that the saved run cannot take (another record, model or setting): a refused resume
+    must leave the directory as the run it holds wrote it."""
+    from heli_uq.inference import TARGET_ACCEPT, resume_obstacle
     from heli_uq.inference.draw_memory import check_draws_memory
     from heli_uq.probability.problem import make_problem
 
-    problem = make_problem(record, model=model, error="iid")
+    problem = make_problem(record, train, test, model=model, error="iid")
     check_draws_memory(problem, args.chains * args.draws,
                        f"draws: {args.chains} chains x {args.draws} draws")  # fmt: skip
+    if not args.resume:
+        return
+    if args.nn_posterior == "last-layer":
+        raise ParameterError("--resume: a last-layer network run trains its hidden layers again, so "
+                             "it cannot continue saved draws; run the command without --resume")  # fmt: skip
+    why = resume_obstacle(problem, out / "posterior", chains=args.chains, warmup=args.warmup,
+                          draws=args.draws, seed=args.seed, target_accept=TARGET_ACCEPT,
+                          **RUN_NUTS)  # fmt: skip
+    if why == "nothing to resume":
+        raise ParameterError(f"--resume: nothing to resume in {out / 'posterior'}; run the command "
+                             "without --resume")  # fmt: skip
+    if why is not None:
+        raise ParameterError(f"--resume: the run in {out / 'posterior'} cannot be continued: {why}; give "
+                             "its settings, or run the command without --resume")  # fmt: skip
 
 
 def cmd_run(args) -> int:
@@ -74,15 +95,10 @@ def cmd_run(args) -> int:
     numpyro.set_host_device_count(args.chains)  # before the first JAX computation
     model = model_from_args(args)
     out = out_dir(args.out)
-    if args.resume:  # refused now, not after the record, Table 3 and prior stages
-        from heli_uq.inference.manifest import MANIFEST_FILE
-        from heli_uq.inference.nuts import CHUNK_DIR
-
-        if not (out / "posterior" / CHUNK_DIR / MANIFEST_FILE).is_file():
-            raise ParameterError(f"--resume: nothing to resume in {out / 'posterior'}; run the command "
-                                 "without --resume")  # fmt: skip
     record = _record_for_run(args.data, out)
-    _check_posterior_size(record, model, args)
+    t0, t_end = float(record.t[0]), float(record.t[0]) + record.duration
+    split = round(t0 + RUN_TRAIN_FRACTION * record.duration, 2)
+    _check_posterior(record, model, args, (t0, split), (split, t_end), out)
     print(show_record(record, out_dir(out / "data")))
     import numpy as np
 
@@ -96,8 +112,6 @@ def cmd_run(args) -> int:
                                           record=record, params_label=label)  # fmt: skip
         print(f"[{name}] {message}")
         status |= code if name == "record_table1" else 0  # Table 2 may diverge: reported only
-    t0, t_end = float(record.t[0]), float(record.t[0]) + record.duration
-    split = round(t0 + RUN_TRAIN_FRACTION * record.duration, 2)
     _, prior = prior_predictive_check(record, out / "prior", model=model, train=(t0, split),
                                       test=(split, t_end), error="iid", draws=PRIOR_DRAWS,
                                       seed=args.seed)  # fmt: skip
@@ -112,7 +126,7 @@ def cmd_run(args) -> int:
         record, post, model=model, train=(t0, split), test=(split, t_end), error="iid",
         chains=args.chains, warmup=args.warmup, draws=args.draws, seed=args.seed,
         progress=not args.no_progress, resume=args.resume,
-        network_posterior=args.nn_posterior or "full",
+        network_posterior=args.nn_posterior or "full", **RUN_NUTS,
     )  # fmt: skip
     keys = ("rhat_max", "ess_bulk_min", "divergences", "coverage90", "coverage90_test", "wall_s")
     print(json.dumps({k: summary[k] for k in keys if k in summary}))

@@ -1,14 +1,16 @@
 """Atomic file writes (write to a temporary file in the same directory, then rename), and
-the up-front memory check of a request (:func:`require_memory`)."""
+the up-front memory check of a request (:func:`require_memory`), and JSON without
+non-finite numbers (:func:`strict_json`)."""
 
 from __future__ import annotations
 
+import math
 import os
 import pathlib
 import tempfile
 
 __all__ = ["atomic_write_bytes", "atomic_write_text", "publish", "read_json_object",
-           "format_bytes", "physical_memory", "require_memory"]
+           "format_bytes", "physical_memory", "require_memory", "strict_json"]
 
 
 def _umask() -> int:
@@ -116,3 +118,17 @@ def require_memory(nbytes: float, what: str, hint: str = "") -> None:
         tail = f"; {hint}" if hint else ""
         raise ParameterError(f"{what} would need about {format_bytes(nbytes)} of memory, more than "
                              f"this machine's {format_bytes(total)}{tail}")  # fmt: skip
+
+
+def strict_json(obj):
+    """``obj`` (dicts, lists, tuples, numbers, strings, None) with every non-finite float
+    (NaN, ±inf) as None: JSON has no such numbers, and Python's ``Infinity`` and ``NaN``
+    tokens break other parsers (JavaScript's ``JSON.parse``, jq's strict mode).  Dump the
+    result with ``allow_nan=False`` so that a non-finite number left anywhere is an error."""
+    if isinstance(obj, dict):
+        return {k: strict_json(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [strict_json(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj

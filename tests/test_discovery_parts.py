@@ -1013,3 +1013,16 @@ def test_a_budget_reads_as_its_preset_and_the_settings_that_differ():
     assert label(dataclasses.replace(BUDGETS["quick"], cold_starts=1)) == "quick, cold_starts=1"
     two = dataclasses.replace(BUDGETS["full"], chains=2, minutes=None)
     assert label(two) == "full, chains=2, minutes=None"
+
+
+def test_strict_json_leaves_no_number_json_lacks():
+    """``discovery.json`` is read by other tools: Python's ``Infinity`` and ``NaN`` break
+    strict parsers, so non-finite numbers are null, everything else as it was."""
+    from heli_uq.io import strict_json
+
+    value = {"score": -np.inf, "rows": [1.5, float("nan"), {"se": np.inf, "n": 3, "name": "x"}],
+             "pair": (0.25, None)}  # fmt: skip
+    clean = strict_json(value)
+    assert clean == {"score": None, "rows": [1.5, None, {"se": None, "n": 3, "name": "x"}],
+                     "pair": [0.25, None]}
+    assert json.loads(json.dumps(clean, allow_nan=False)) == clean

@@ -3,8 +3,10 @@
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
-from heli_uq.discovery.locate import locate, noise_scale
+from heli_uq.discovery.locate import failed_draws, locate, noise_scale
+from heli_uq.errors import ParameterError
 
 #: Relative accuracy of the difference-based noise scale on 20,000 white samples
 #: (its standard error is about 0.9 %).
@@ -17,7 +19,8 @@ def _fitted(resid, sigma, dt=0.01, draws=8):
     n = resid.shape[0]
     y = np.zeros((n, 2))
     sim = np.broadcast_to(-resid, (draws, n, 2))
-    problem = SimpleNamespace(y=y, u=np.ones((n, 2)), t=dt * np.arange(n), dt=dt,
+    problem = SimpleNamespace(y=y, u=np.ones((n, 2)), t=dt * np.arange(n), dt=dt, source="rec.csv",
+                              n_train=int(0.7 * n),
                               windows=lambda: {"train": (0, int(0.7 * n)), "test": (int(0.7 * n), n)})
     rng = np.random.default_rng(0)
     return SimpleNamespace(start=SimpleNamespace(problem=problem, solver_edge=None), y_sim=sim,
@@ -83,3 +86,17 @@ def test_the_residuals_figure_shows_the_misses_apart_from_the_residual_lines(tmp
     assert yaw_misses == round(segment["outside90_psi"] * n)
     legend = {text.get_text() for text in top.get_legend().get_texts()}
     assert {"pitch outside the 90 % band", "yaw outside the 90 % band"} <= legend
+
+
+def test_a_base_fit_none_of_whose_draws_simulate_is_refused_not_read_as_missing_nothing():
+    """A band of NaN contains nothing and excludes nothing: its misses had read 0 % on every
+    window and segment, and the run had gone on to decide.  Some failed draws are counted;
+    all failed is refused, naming the windows."""
+    fitted = _fitted(0.001 * np.ones((100, 2)), np.array([0.003, 0.008]))
+    assert failed_draws(fitted) == 0
+    fitted.y_pred[:3] = np.nan
+    assert failed_draws(fitted) == 3
+    fitted.y_pred[:] = np.nan
+    with pytest.raises(ParameterError, match=r"rec.csv: the base model fitted on 0:0.7 s cannot be "
+                                             r"simulated to 1 s \(all 8 of its predictive draws fail\)"):
+        failed_draws(fitted)

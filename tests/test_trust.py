@@ -412,6 +412,38 @@ def test_bands_figure_says_unconverged_and_keeps_the_data_readable():
         assert all(b.get_alpha() < 1 for b in bands)  # and translucent, so the data shows
 
 
+def test_draws_that_fail_to_simulate_are_counted_and_left_out_of_the_bands_not_blanking_them():
+    """A predictive draw whose solve failed is NaN throughout.  The coverage and RMSE are of
+    the draws that simulate and say how many failed; with none simulating they are NaN,
+    not 0 % (a band of NaN contains nothing and misses nothing); the figure draws the
+    bands of the others and says so, where NaN quantiles had left it without bands; the
+    command's result line carries ``ok`` and the count."""
+    from heli_uq.cli.options import result_line
+    from heli_uq.output import predictive_metrics
+    from heli_uq.output.plots import plot_bands
+
+    t = np.arange(100) * 0.01
+    obs = np.column_stack([np.linspace(-0.5, -0.4, 100), np.linspace(0.0, 0.2, 100)])
+    pred = obs[None] + 0.01 * np.random.default_rng(0).standard_normal((50, 100, 2))
+    whole = predictive_metrics(pred, pred, obs)
+    pred[:15] = np.nan
+    part = predictive_metrics(pred, pred, obs)
+    assert (part["draws_failed"], part["draws"], whole["draws_failed"]) == (15, 50, 0)
+    finite = predictive_metrics(pred[15:], pred[15:], obs)
+    assert part["coverage90"] == finite["coverage90"] and part["rmse"] == finite["rmse"]
+    none = predictive_metrics(np.full_like(pred, np.nan), np.full_like(pred, np.nan), obs)
+    assert none["draws_failed"] == 50 and all(np.isnan(v) for v in none["coverage90"].values())
+    fig = plot_bands(t, pred, obs, train_mask=np.ones(100, bool), title="T", health="UNPHYSICAL")
+    for ax in fig.axes[:2]:
+        band = next(c for c in ax.collections if str(c.get_label()).startswith("90 %"))
+        assert np.isfinite(band.get_paths()[0].vertices).all() and len(band.get_paths()[0].vertices) > 4
+        labels = ax.get_legend_handles_labels()[1]
+        assert "15 of 50 draws failed to simulate: bands of the others" in labels, labels
+    summary = {"health": {"ok": False}, "rmse": part["rmse"], "windows": {"train": part}}
+    line = json.loads(result_line(summary, ("rmse", "divergences")))
+    assert line["ok"] is False and line["draws_failed"] == {"train": "15 of 50"} and "divergences" not in line
+
+
 # --------------------------------------------------------------------------- physical range
 
 

@@ -8,6 +8,7 @@ it (``--effects: ...``).
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from pathlib import Path
 
@@ -16,8 +17,8 @@ from heli_uq.model.terms.neural_torque import DEFAULT_HIDDEN  # of --model hybri
 
 __all__ = ["Formatter", "add_model_options", "model_from_args", "add_prior_options",
            "priors_from_args", "prior_changes_from_args", "check_positive", "out_dir",
-           "positive_float", "EFFECTS_HELP", "add_trust_options", "report_health", "EXIT_UNHEALTHY",
-           "DEFAULT_HIDDEN"]  # fmt: skip
+           "positive_float", "EFFECTS_HELP", "add_trust_options", "report_health", "result_line",
+           "EXIT_UNHEALTHY", "DEFAULT_HIDDEN"]  # fmt: skip
 
 #: Exit status of a run whose health checks failed under ``--strict``.
 EXIT_UNHEALTHY = 3
@@ -225,6 +226,18 @@ def add_trust_options(p) -> None:
                    help=f"exit with status {EXIT_UNHEALTHY} when a health check fails "
                         "(R-hat, ESS, divergences, tree depth, step size, MAP convergence, "
                         "unphysical predictive simulations); without it they are warnings")
+
+
+def result_line(summary: dict, keys) -> str:
+    """The one JSON line a sampling command prints: ``ok`` (the health checks passed), the
+    summary's ``keys`` it has, and ``draws_failed`` (``{window: "k of S"}``) when some
+    predictive draws did not simulate, since the coverage and RMSE are then of the others."""
+    line = {"ok": summary["health"]["ok"], **{k: summary[k] for k in keys if k in summary}}
+    failed = {w: f"{c['draws_failed']} of {c['draws']}" for w, c in summary.get("windows", {}).items()
+              if c.get("draws_failed")}  # fmt: skip
+    if failed:
+        line["draws_failed"] = failed
+    return json.dumps(line)
 
 
 def report_health(summary: dict, strict: bool) -> int:

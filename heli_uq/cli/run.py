@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 
@@ -15,6 +14,7 @@ from heli_uq.cli.options import (
     model_from_args,
     out_dir,
     report_health,
+    result_line,
 )
 from heli_uq.cli.simulate import simulate_to_files
 from heli_uq.errors import HeliUQError, ParameterError
@@ -129,7 +129,7 @@ def cmd_run(args) -> int:
         network_posterior=args.nn_posterior or "full", **RUN_NUTS,
     )  # fmt: skip
     keys = ("rhat_max", "ess_bulk_min", "divergences", "coverage90", "coverage90_test", "wall_s")
-    print(json.dumps({k: summary[k] for k in keys if k in summary}))
+    print(result_line(summary, keys))
     print(f"wrote {post / 'posterior.nc'}, summary.json, bands.png")
     print(f"main job finished; figures and tables in {out}")
     health = report_health(summary, args.strict)  # printed whatever the status

@@ -16,6 +16,7 @@ from heli_uq.cli.options import (
     out_dir,
     priors_from_args,
     report_health,
+    result_line,
 )
 from heli_uq.errors import ParameterError
 
@@ -77,7 +78,7 @@ def cmd_sample(args) -> int:
     keys = ("rhat_max", "ess_bulk_min", "ess_tail_min", "divergences", "rmse", "coverage90",
             "rmse_test", "coverage90_test", "solver_error_rad", "wall_s", "rhat_max_network_torque",
             "rhat_max_network_weights")  # fmt: skip
-    print(json.dumps({k: summary[k] for k in keys if k in summary}))
+    print(result_line(summary, keys))
     from heli_uq.output.network import is_network_weight
 
     effect_names = {p.name for term in model.effects for p in term.parameters()

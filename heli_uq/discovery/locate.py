@@ -29,9 +29,10 @@ import numpy as np
 from heli_uq.data.rates import measured_rates
 from heli_uq.discovery.score import input_blocks
 from heli_uq.discovery.screen import white_axes
+from heli_uq.errors import ParameterError
 from heli_uq.figure import new_figure, save_figure
 
-__all__ = ["locate", "noise_scale", "STILL_RATE", "N_BINS"]
+__all__ = ["locate", "noise_scale", "failed_draws", "STILL_RATE", "N_BINS"]
 
 #: An axis counts as still below this rate [rad/s] (smoothed measured angle).
 STILL_RATE = 0.02
@@ -76,6 +77,29 @@ def _binned(feature, outside) -> list[dict]:
             out.append({"low": float(lo), "high": float(hi), "n": int(m.sum()),
                         "outside90": float(outside[m].mean())})  # fmt: skip
     return out
+
+
+def failed_draws(fitted) -> int:
+    """How many of the base fit's predictive draws fail to simulate (NaN) over the fitting
+    and held-out windows.
+
+    Raises
+    ------
+    ParameterError
+        If every draw fails: there is no band to locate misses in and nothing to compare
+        candidates with (the misses had read 0 %, as if the model were perfect).
+    """
+    y_pred = np.asarray(fitted.y_pred)
+    failed = int(np.isnan(y_pred).any(axis=(1, 2)).sum())
+    if failed == y_pred.shape[0]:
+        problem = fitted.start.problem
+        t = problem.t
+        raise ParameterError(
+            f"{problem.source}: the base model fitted on {t[0]:g}:{t[problem.n_train - 1] + problem.dt:g} s "
+            f"cannot be simulated to {t[-1] + problem.dt:g} s (all {failed} of its predictive draws "
+            "fail), so there is no gap to locate or close; try a longer fitting window, other "
+            "--base-effects, or --cold-starts 1")  # fmt: skip
+    return failed
 
 
 def locate(fitted, out_dir=None) -> dict:

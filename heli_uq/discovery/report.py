@@ -25,7 +25,7 @@ from heli_uq.discovery.candidates_figure import candidates_figure
 from heli_uq.discovery.report_page import gap_warnings, report_page, tie_text
 from heli_uq.discovery.score import gain_text, gap_metrics, gap_text
 from heli_uq.figure import save_figure
-from heli_uq.io import atomic_write_text
+from heli_uq.io import atomic_write_text, strict_json
 from heli_uq.model import build_model
 from heli_uq.output import plot_bands, sample_posterior
 
@@ -174,7 +174,10 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
                    "parameters": _effect_parameters(params, e, priors)} for e in added],
     }  # fmt: skip
     assert tuple(result) == DISCOVERY_KEYS
-    atomic_write_text(out / "discovery.json", json.dumps(result, indent=1))
+    # the file and the return value: a score of -inf (no draw of a candidate simulates) is
+    # null, as JSON has no Infinity; the report and figure read the numbers as they are
+    raw, result = result, strict_json(result)
+    atomic_write_text(out / "discovery.json", json.dumps(result, indent=1, allow_nan=False))
     title = f"{pathlib.Path(str(record.source)).name}"
     save_figure(plot_bands(bt, bp, by, **_plot_masks(before_masks, split),
                            coverage=_coverage(gap_before),
@@ -185,10 +188,10 @@ def write_outputs(out: pathlib.Path, *, record, base_effects, added, base, base_
                            health=flags,
                            title=f"After: {build_model(effects).label} (NUTS) - {title}"),
                 out / "bands_after.png")  # fmt: skip
-    save_figure(candidates_figure(result["candidates"], n_scored, criterion), out / "candidates.png")
+    save_figure(candidates_figure(raw["candidates"], n_scored, criterion), out / "candidates.png")
     whole = {"before": gap_metrics(bs, bp, by), "after": gap_metrics(as_, ap, ay)}
     seconds = (time.perf_counter() - t_start, search_seconds)
-    page = report_page(result, where, ranking, steps, base, budget_label(budget), fit_window, score_window,
+    page = report_page(raw, where, ranking, steps, base, budget_label(budget), fit_window, score_window,
                        n_scored, health, whole, seconds, record, base_model.label, priors, criterion)
     atomic_write_text(out / "report.md", page)
     say(f"done: {result['decision']}")

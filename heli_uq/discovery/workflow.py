@@ -72,7 +72,7 @@ from heli_uq.discovery.budget import BUDGETS, Budget
 from heli_uq.discovery.candidates import FitTask, fitted_predictive, off_start, score_fitted, warm_starts
 from heli_uq.discovery.decide import choose, pairs_to_fit, rank
 from heli_uq.discovery.implied import base_features, effect_features, implied_torque
-from heli_uq.discovery.locate import locate
+from heli_uq.discovery.locate import failed_draws, locate
 from heli_uq.discovery.nesting import RESTART_NATS, beyond, carried, model_key, nested_guess, pair_start
 from heli_uq.discovery.report import write_outputs
 from heli_uq.discovery.rounds import CandidateStore, run_round
@@ -246,6 +246,7 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     say(f"fitting the base model ({build_model(base_effects).label}) on {fit_w[0]:g}:{fit_w[1]:g} s")
     base_task = task(base_effects, (RIG_FIT,), cold=cost.n_starts)  # the rig's fit, then cold starts
     base_fit = fitted_predictive(base_task)
+    failed = failed_draws(base_fit)  # none simulating: refused here, not scored as no misses
     base = score_fitted(base_fit, base_task)
     c, d = base_fit.start.problem.windows()["test"]
     n_scored = d - c  # held-out samples (the blocks tile the window)
@@ -253,7 +254,9 @@ def discover(record: Experiment, out_dir, *, window=None, train=None, test=None,
     n_fit = b - a
     where = locate(base_fit, out)
     white = where["white"]  # the screen of every step: the first base fit's (a restart keeps it)
-    say(f"base model: held-out {gap_text(base['score'])}; worst axis: {where['axis']}")
+    say(f"base model: held-out {gap_text(base['score'])}; worst axis: {where['axis']}"
+        + (f" ({failed} of {len(base_fit.y_pred)} predictive draws fail to simulate: the numbers "
+           "are of the others)" if failed else ""))  # fmt: skip
     say(f"residuals white on {' and '.join(a for a in AXES if white[a]['white']) or 'neither axis'} "
         f"({screen_text(white)})")  # fmt: skip
     if where.get("solver_edge"):

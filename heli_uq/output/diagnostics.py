@@ -206,11 +206,20 @@ def predictive_metrics(y_sim: np.ndarray, y_pred: np.ndarray, y_obs: np.ndarray)
     dict
         ``rmse``, ``coverage90``, ``coverage50`` (each ``{theta, psi}``): RMSE [rad] of the
         mean simulation and the fraction of ``y_obs`` inside the central 90 % / 50 %
-        predictive band; ``loss_v`` [rad^2]: the paper's loss of the mean simulation.
+        predictive band; ``loss_v`` [rad^2]: the paper's loss of the mean simulation;
+        ``draws_failed``, ``draws``: how many of the S draws did not simulate (NaN).  The
+        other numbers are of the draws that simulate: with any failed, they describe a
+        predictive distribution without its failures (the health check flags them), and
+        with all failed they are NaN.
     """
     y_sim, y_pred = np.asarray(y_sim, dtype=float), np.asarray(y_pred, dtype=float)
     y_obs = np.asarray(y_obs, dtype=float)
-    failed = np.isnan(y_pred).any()
+    n_failed = int(np.isnan(y_pred).any(axis=(1, 2)).sum())
+    if n_failed == y_pred.shape[0]:
+        nan = {"theta": float("nan"), "psi": float("nan")}
+        return {"rmse": nan, "coverage90": dict(nan), "coverage50": dict(nan), "loss_v": float("nan"),
+                "draws_failed": n_failed, "draws": n_failed}  # fmt: skip
+    failed = n_failed > 0
     q = (np.nanquantile if failed else np.quantile)(y_pred, [0.05, 0.25, 0.75, 0.95], axis=0)
     mean_sim = (np.nanmean if failed else np.mean)(y_sim, axis=0)
     out = {"rmse": {}, "coverage90": {}, "coverage50": {}}
@@ -220,6 +229,7 @@ def predictive_metrics(y_sim: np.ndarray, y_pred: np.ndarray, y_obs: np.ndarray)
         out["coverage90"][name] = float(np.mean((obs >= q[0, :, j]) & (obs <= q[3, :, j])))
         out["coverage50"][name] = float(np.mean((obs >= q[1, :, j]) & (obs <= q[2, :, j])))
     out["loss_v"] = float(loss_v(mean_sim, y_obs))
+    out["draws_failed"], out["draws"] = n_failed, int(y_pred.shape[0])
     return out
 
 
@@ -235,7 +245,8 @@ def predictive_checks(idata) -> dict:
     for window, mask in _windows(idata).items():
         res = predictive_metrics(y_sim[:, mask], y_pred[:, mask], y_obs[mask])
         res["loss_v_posterior_mean_sim"] = res.pop("loss_v")
-        res["loss_v_mean_over_draws"] = float(np.mean([loss_v(s[mask], y_obs[mask]) for s in y_sim]))
+        res["loss_v_mean_over_draws"] = float(np.nanmean([loss_v(s[mask], y_obs[mask]) for s in y_sim])
+                                              if res["draws_failed"] < res["draws"] else np.nan)
         res["n_samples"] = int(mask.sum())
         out[window] = res
     return out

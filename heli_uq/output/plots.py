@@ -218,7 +218,12 @@ def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
         where the bands span everything, they show what one draw does.
     """
     t = np.asarray(t, dtype=float)
-    q = np.degrees(np.quantile(np.asarray(y_pred), [0.05, 0.25, 0.5, 0.75, 0.95], axis=0))
+    y_pred = np.asarray(y_pred, dtype=float)
+    solved = ~np.isnan(y_pred).any(axis=(1, 2))  # a failed solve is NaN throughout
+    failed_note = (f"{np.sum(~solved)} of {solved.size} draws failed to simulate: bands of the others"
+                   if not solved.all() else None)  # fmt: skip
+    q = np.degrees(np.quantile(y_pred[solved] if solved.any() else y_pred,
+                               [0.05, 0.25, 0.5, 0.75, 0.95], axis=0))  # fmt: skip
     obs = np.degrees(np.asarray(y_obs, dtype=float))
     fig, axes = _new_figure(2, (11.0, 6.5))
     for j, (ax, name, sym, color) in enumerate(zip(
@@ -235,6 +240,8 @@ def plot_bands(t, y_pred, y_obs, *, train_mask, test_mask=None, coverage=None,
             ex = np.degrees(np.asarray(examples))[:, :, j]
             ax.plot(t, ex.T, color="0.35", lw=0.5, alpha=0.7, zorder=4)
             ax.plot([], [], color="0.35", lw=0.5, label=f"{len(ex)} single draws")
+        if failed_note:
+            ax.plot([], [], " ", label=failed_note if solved.any() else "no draw simulates: no band")
         if test_mask is not None and np.any(test_mask):
             t_test = t[np.asarray(test_mask, bool)]
             ax.axvspan(t_test[0], t_test[-1], color="0.85", zorder=-1, label="test window")

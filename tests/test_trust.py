@@ -729,6 +729,14 @@ def test_an_interrupted_command_is_told_a_command_that_parses(tmp_path):
             assert ("12 of 350 draws" in message) == isinstance(exc, Interrupted)
             if not resumes:
                 assert "reuses the finished candidate fits and the refit's draws" in message
+    # interrupted outside a block's safe point: what the directory holds is what is said
+    args = parser.parse_args(argv := ["sample", "--data", "experimental", "--out", str(tmp_path)])
+    chunks = tmp_path / "chunks"
+    chunks.mkdir()
+    (chunks / "manifest.json").write_text("{}")
+    assert "no draws yet; the MAP start saved in" in _interrupt_message(KeyboardInterrupt(), args, argv)
+    (chunks / "nuts_chunk_00000.pkl").write_bytes(b"")
+    assert "; the draws saved in" in _interrupt_message(KeyboardInterrupt(), args, argv)
 
 
 #: The uninterrupted NUTS run that the interrupted, resumed and time-limited runs reproduce.
@@ -891,6 +899,13 @@ def test_a_run_goes_on_past_its_draws_while_they_have_not_converged(synthetic_pr
     at_once = nuts.run_nuts(synthetic_problem, tmp_path / "once", draws=15, max_draws=60,
                             converged=lambda samples: True, **kw)  # fmt: skip
     assert at_once.info["draws"] == 15 and "draws_extended_from" not in at_once.info
+    # a finished run resumed with max_draws goes on where its check fails (it had been
+    # returned as it was: the extension was decided only inside the sampling loop)
+    resumed = nuts.run_nuts(synthetic_problem, tmp_path / "once", draws=15, max_draws=60, resume=True,
+                            converged=converged_at_35, **kw)  # fmt: skip
+    assert resumed.info["draws"] == 35 and resumed.info["draws_extended_from"] == 15, resumed.info
+    for k in longer.samples:
+        np.testing.assert_array_equal(longer.samples[k][:, :35], resumed.samples[k], err_msg=k)
     with pytest.raises(ParameterError, match="max_draws"):
         nuts.run_nuts(synthetic_problem, tmp_path / "bad", draws=15, max_draws=60, **kw)
 
@@ -1061,3 +1076,29 @@ def test_a_long_figure_title_is_wrapped_inside_the_figure():
     box = fig._suptitle.get_window_extent()
     assert 0 <= box.x0 and box.x1 <= fig.bbox.width and box.y1 <= fig.bbox.height
     assert fig._suptitle.get_text().replace("\n", " ") == title
+
+
+def test_a_fresh_run_removes_another_runs_results_before_writing_its_own(tmp_path, monkeypatch):
+    """One run per directory: a fresh run into a directory holding another run's results
+    removes them before it writes its MAP, so an interrupted run never leaves its map.json
+    beside the other run's posterior.nc and summary.json (which `--init DIR` and
+    `identifiability --posterior` would then mix)."""
+    from heli_uq.inference.interrupt import Interrupted
+    from heli_uq.output import posterior_study
+
+    out = tmp_path / "run"
+    out.mkdir()
+    for name in posterior_study.RESULT_FILES:
+        (out / name).write_text("the other run's")
+    (out / "notes.txt").write_text("the user's")
+
+    def interrupted(*args, **kwargs):
+        raise Interrupted("nothing")
+
+    monkeypatch.setattr(posterior_study, "run_laplace", interrupted)
+    record = synthetic_experiment(duration=1.0, seed=4, noise_std=(0.003, 0.003))
+    with pytest.raises(Interrupted):
+        posterior_study.sample_posterior(record, out, sampler="laplace", error="iid", chains=1, draws=10,
+                                         n_starts=1, progress=False, log=lambda m: None)  # fmt: skip
+    assert sorted(p.name for p in out.iterdir()) == ["map.json", "notes.txt"]
+    assert "m" in json.loads((out / "map.json").read_text())  # this run's MAP

@@ -140,8 +140,9 @@ def _interrupt_message(exc: KeyboardInterrupt, args, argv: list[str]) -> str:
     out = getattr(args, "out", None)
     saved = sorted(Path(out).rglob(MANIFEST_FILE)) if out and resumes else []
     if saved:  # between sampler blocks' safe points (MAP, post-processing): chunks are on disk
-        return (f"interrupted; the draws saved in {saved[0].parent} continue with: "
-                f"{shlex.join(again)}")  # fmt: skip
+        what = ("the draws saved in" if any(saved[0].parent.glob("*_chunk_*.pkl"))
+                else "no draws yet; the MAP start saved in")  # before the first block ended
+        return f"interrupted; {what} {saved[0].parent} continue with: {shlex.join(again)}"
     return "interrupted before anything was saved; run the command again"
 
 

@@ -255,6 +255,10 @@ def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,
     meter, decided = warmup_limit.PaceMeter(FIRST_BLOCK), False
     first_block_seconds = 0.0
     total = warmup + draws
+    if (records and it == total and max_draws is not None and draws < max_draws
+            and not converged(constrained_draws(density, records, chains))):  # fmt: skip
+        draws = min(draws + chunk, max_draws)  # a finished run resumed to go on while unconverged
+        total = warmup + draws
     bar = Progress(progress)
     pending: list[tuple] = []
     n_block, t_loop, paced = FIRST_BLOCK, time.perf_counter(), False

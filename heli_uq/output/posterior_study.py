@@ -58,6 +58,10 @@ SOLVER_TOL = 1e-4
 #: The MAP's parameters in a run's directory: a flat JSON object ``{name: value [SI]}`` of
 #: every model parameter (fixed ones at their fixed values), written when the MAP is found.
 MAP_FILE = "map.json"
+#: The files a posterior run writes in its directory besides its saved draws: a fresh run
+#: removes another run's before it writes its own, so that an interrupted run never leaves
+#: its map.json beside the other run's results (one run per directory).
+RESULT_FILES = ("posterior.nc", "summary.json", "summary.csv", "bands.png", MAP_FILE)
 
 
 def parameter_summary(idata, model: HeliModel, problem=None) -> dict:
@@ -250,6 +254,11 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
                        + (" x walkers" if sampler == "emcee" else ""))  # fmt: skip
     start = None
     if not resume:
+        stale = [out / f for f in RESULT_FILES if (out / f).is_file()]
+        for path in stale:
+            path.unlink()
+        if stale:
+            stage(f"a fresh run in {out}: removed the previous run's {', '.join(p.name for p in stale)}")
         stage(f"MAP: {n_starts} starts (least squares, then Newton on the log posterior; "
               "the first compiles the model)")  # fmt: skip
         start = prepare_start(problem, n_starts=max(n_starts, len(guesses)), seed=seed, log=stage,

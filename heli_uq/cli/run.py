@@ -128,7 +128,8 @@ def cmd_run(args) -> int:
         progress=not args.no_progress, resume=args.resume,
         network_posterior=args.nn_posterior or "full", **RUN_NUTS,
     )  # fmt: skip
-    keys = ("rhat_max", "ess_bulk_min", "divergences", "coverage90", "coverage90_test", "wall_s")
+    keys = ("rhat_max", "ess_bulk_min", "ess_tail_min", "divergences", "coverage90", "coverage90_test",
+            "wall_s")
     print(result_line(summary, keys))
     print(f"wrote {post / 'posterior.nc'}, summary.json, bands.png")
     print(f"main job finished; figures and tables in {out}")

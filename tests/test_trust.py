@@ -635,7 +635,9 @@ def test_unconverged_run_warns_strict_fails_and_resume_checks_its_manifest(tmp_p
                             (["--target-accept", "0.8"],
                              [f"target_accept {TARGET_ACCEPT:g} -> 0.8"])):  # fmt: skip
         assert main(argv + ["--resume"] + change) == 2, change
-        _one_line_error(capsys.readouterr().err, "--resume:", *needles)
+        captured = capsys.readouterr()
+        _one_line_error(captured.err, "--resume:", *needles)
+        assert "resumed" not in captured.out  # refused before it is announced
     empty = ["--out", str(tmp_path / "empty"), "--resume"]
     assert main(argv[:-2] + empty) == 2
     _one_line_error(capsys.readouterr().err, "--resume: nothing to resume")

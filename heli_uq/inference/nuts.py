@@ -91,12 +91,18 @@ def _manifest(problem: Problem, **settings) -> dict:
 
 def resume_obstacle(problem: Problem, out_dir, *, chains: int, warmup: int, draws: int, seed: int,
                     max_tree_depth: int, target_accept: float, adapt_mass_matrix: bool,
-                    chunk: int = CHUNK) -> str | None:
+                    chunk: int = CHUNK, refuse: bool = False) -> str | None:
     """Why :func:`run_nuts` with these arguments cannot continue the run in ``out_dir/chunks``
-    (:meth:`~heli_uq.inference.checkpoint.Checkpoint.obstacle`); None if ``resume=True`` would."""
-    return Checkpoint(pathlib.Path(out_dir) / CHUNK_DIR).obstacle(_manifest(
-        problem, chains=chains, warmup=warmup, draws=draws, chunk=chunk, seed=seed,
-        max_tree_depth=max_tree_depth, target_accept=target_accept, adapt_mass_matrix=adapt_mass_matrix))
+    (:meth:`~heli_uq.inference.checkpoint.Checkpoint.obstacle`); None if ``resume=True`` would.
+    ``refuse``: raise the :class:`ParameterError` that ``run_nuts(resume=True)`` would
+    instead (a caller that announces the resume checks it first)."""
+    checkpoint = Checkpoint(pathlib.Path(out_dir) / CHUNK_DIR)
+    manifest = _manifest(problem, chains=chains, warmup=warmup, draws=draws, chunk=chunk, seed=seed,
+                         max_tree_depth=max_tree_depth, target_accept=target_accept,
+                         adapt_mass_matrix=adapt_mass_matrix)  # fmt: skip
+    if refuse:
+        checkpoint.resume_info(manifest)
+    return checkpoint.obstacle(manifest)
 
 
 def run_nuts(problem: Problem, out_dir, *, chains: int = 4, warmup: int = 1000,

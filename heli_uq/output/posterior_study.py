@@ -267,6 +267,8 @@ def sample_posterior(record: Experiment, out_dir, *, model: HeliModel | None = N
         stage(f"MAP done: -log p = {start.map_value:.6g}, Newton decrement "
               f"{start.map_decrement:.2g}, {start.problem.substeps} substeps")  # fmt: skip
         atomic_write_text(out / MAP_FILE, json.dumps(start.map_point()[0], indent=1))
+    if resume and sampler == "nuts":  # refused before it is announced as resumed
+        resume_obstacle(problem, out, **nuts_settings, refuse=True)
     shape = (f"{chains} x {draws} independent draws of the Gaussian at the MAP" if sampler == "laplace"
              else f"{chains} chains x ({warmup} + {draws})")  # (Laplace has no warm-up)
     stage(f"{sampler}: {shape}" + (" (resumed from the saved chunks)" if resume else ""))

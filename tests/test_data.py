@@ -264,6 +264,23 @@ def test_angles_in_degrees_by_the_header_are_read_in_radians(tmp_path, caplog):
         read_record(write(tmp_path / "v.csv", "u_theta,u_psi,theta [V],psi,dt", GOOD_ROWS))
 
 
+def test_a_pitch_no_rig_reaches_is_read_with_a_warning_that_asks_about_degrees(tmp_path, caplog):
+    """A pitch column logged in degrees under a rad header (-38 "rad") reads, since the
+    file says rad, but the warning names the column and the remedy; the rig's own
+    angles give none; a semicolon-separated file is named as such."""
+    with caplog.at_level("WARNING", logger="heli_uq"):
+        read_record(write(tmp_path / "rad.csv", PLAIN_HEADER, GOOD_ROWS))
+    assert "theta" not in caplog.text
+    rows = [f"1.2,0.7,{math.degrees(-0.6 - 0.001 * k)!r},0.8," + ("0.01" if k == 0 else "")
+            for k in range(4)]  # a slow pitch, in degrees
+    with caplog.at_level("WARNING", logger="heli_uq"):
+        read_record(write(tmp_path / "deg.csv", PLAIN_HEADER, rows))
+    assert "column 3 (theta) holds pitch angles" in caplog.text and "[deg]" in caplog.text
+    semicolons = [r.replace(",", ";") for r in GOOD_ROWS]
+    with pytest.raises(DataFormatError, match="separated by ';', expected ','"):
+        read_record(write(tmp_path / "semi.csv", PLAIN_HEADER.replace(",", ";"), semicolons))
+
+
 HEADER_CASES = {
     "unknown cell": ("u_theta,u_psi,angle,psi,dt", ["cell 3 ('angle') names no column"]),
     "twice": ("u_theta,u_psi,theta,Pitch angle [rad],dt", ["cells 3 and 4 both name theta"]),

@@ -34,7 +34,7 @@ from heli_uq.data.record import COLUMNS, HEADER, Experiment, _as_float
 from heli_uq.errors import DataFormatError
 
 __all__ = ["read_record", "COLUMN_NAMES", "DT_REL_TOL", "DT_RANGE", "PLAUSIBLE", "MAX_ANGLE_STEP",
-           "WRAP_RESIDUAL", "TIME_TOL", "DT_DIGITS", "UNITS"]  # fmt: skip
+           "WRAP_RESIDUAL", "TIME_TOL", "DT_DIGITS", "UNITS", "PITCH_LIMIT"]  # fmt: skip
 
 #: Relative difference at which a repeated sample time counts as a different one (a
 #: writer that prints dt on every row may round it).
@@ -182,6 +182,10 @@ def read_record(path: str | os.PathLike) -> Experiment:
         return DataFormatError(f"{path}, line {line}: unexpected header {header}: {detail}; {expected}")
 
     cells = [c for c in header if c.strip()]
+    if len(header) == 1 and ";" in header[0]:
+        raise DataFormatError(f"{path}, line {line}: the cells are separated by ';', expected ',' "
+                              "(and a decimal point, not a comma): write the file as a comma-separated "
+                              "CSV")  # fmt: skip
     if cells and all(_as_float(c) is not None for c in cells):
         raise DataFormatError(f"{path}, line {line}: missing header: found numbers {header} where "
                               f"the header was expected ({expected})")  # fmt: skip
@@ -203,6 +207,7 @@ def read_record(path: str | os.PathLike) -> Experiment:
     if times is not None:
         dt = _check_times(times, dt, lines, columns["time"], fail)
     _unwrap_angles(values, lines, columns, fail, path)
+    _check_pitch_range(values[:, 2], columns, path)
     n = values.shape[0]
     return Experiment(np.arange(n) * dt, values[:, :2], values[:, 2:], dt, str(path))
 
@@ -268,9 +273,26 @@ def _check_times(times: np.ndarray, dt: float | None, lines: list[int], col: int
     bad = np.flatnonzero(off > TIME_TOL * dt)
     if bad.size:
         j = int(bad[0])
-        raise fail(lines[j], col, f"time {times[j]!r} s is not {times[0]:g} + {j} × {dt:g} s: "
+        raise fail(lines[j], col, f"time {float(times[j])!r} s is not {times[0]:g} + {j} × {dt:g} s: "
                    "expected evenly spaced samples")
     return dt
+
+
+#: A pitch beyond this [rad] is no rig's (it hangs below the horizontal and stops short
+#: of the vertical): a column of such angles is most likely in degrees.
+PITCH_LIMIT = 0.5 * math.pi
+
+
+def _check_pitch_range(theta: np.ndarray, columns: dict, path) -> None:
+    """Warn, naming the column, when the pitch leaves ±:data:`PITCH_LIMIT` (the model
+    calls such a simulation unphysical): an angle logged in degrees under a rad header
+    would otherwise be fitted as physics and its misfit blamed on the model."""
+    low, high = float(np.min(theta)), float(np.max(theta))
+    if max(-low, high) > PITCH_LIMIT:
+        logging.getLogger(__name__).warning(
+            f"{path}: column {columns['theta'] + 1} (theta) holds pitch angles {low:.4g}..{high:.4g} rad, "
+            f"beyond ±{PITCH_LIMIT:.4g} rad (90 deg), where no rig's pitch goes: if the column is in "
+            "degrees, write [deg] in its header")
 
 
 def _unwrap_angles(values: np.ndarray, lines: list[int], columns: dict, fail, path) -> None:

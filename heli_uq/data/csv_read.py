@@ -89,16 +89,20 @@ _TEX = str.maketrans("", "", "$\\{}")
 _UNIT = re.compile(r"\s*[\[(]([^\[\]()]*)[\])]$")
 
 
+def _plain(cell: str) -> str:
+    """A header cell lower-cased, without BOM, TeX markup or repeated spaces."""
+    return " ".join(cell.replace("\ufeff", "").translate(_TEX).split()).lower()
+
+
 def _cell_key(cell: str) -> str:
-    """A header cell lower-cased, without BOM, TeX markup, repeated spaces or a trailing unit
-    (``Pitch motor $u_\\theta$ [V]`` -> ``pitch motor u_theta``)."""
-    text = " ".join(cell.replace("\ufeff", "").translate(_TEX).split()).lower()
-    return _UNIT.sub("", text)
+    """:func:`_plain` without a trailing unit (``Pitch motor $u_\\theta$ [V]`` -> ``pitch motor
+    u_theta``)."""
+    return _UNIT.sub("", _plain(cell))
 
 
 def _cell_unit(cell: str) -> str | None:
     """The unit a header cell gives in trailing brackets (lower-case), or None."""
-    match = _UNIT.search(" ".join(cell.replace("\ufeff", "").translate(_TEX).split()).lower())
+    match = _UNIT.search(_plain(cell))
     return None if match is None else match.group(1).strip()
 
 
